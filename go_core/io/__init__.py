@@ -1,0 +1,1 @@
+"""File IO helpers shared by the library: atomic writes, images, JSON."""

@@ -1,0 +1,42 @@
+"""The contract between the runner and a step function.
+
+A step module exposes ``VERSION: str`` (bump it when its output would change for the same inputs: it is
+part of the cache key) and ``run(ctx: StepContext, inputs: dict[str, Path], params: dict) -> None``.
+
+* ``inputs`` maps the input names declared in pipeline.yaml to the upstream artifact folders (read-only);
+  the special input ``scene`` is the scene folder itself.
+* The step writes every output file into ``ctx.out_dir`` (a temp folder the runner renames atomically
+  into place when ``run`` returns; an exception leaves nothing behind that looks complete).
+* Long steps save checkpoints into ``ctx.checkpoint_dir`` (persistent for this cache key across crashes;
+  write them atomically) and resume from the newest one on start, so a killed run finishes with the same
+  artifacts as an uninterrupted one. RNG state belongs in the checkpoint.
+* ``ctx.record(**values)`` adds JSON-able values (counts, losses, "status"/"reason" for a skipped step,
+  which model was used, ...) to the step manifest and so to the run report.
+* Steps are deterministic on CPU for ``ctx.seed``; no globals; user-facing problems raise
+  ``go_core.errors.GoError`` subclasses with one clear line.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Protocol
+
+
+class Progress(Protocol):
+    def advance(self, n: int = 1) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class StepContext(Protocol):
+    step: str  # the step's name in pipeline.yaml
+    out_dir: Path  # where outputs go (temp; renamed into place on success)
+    checkpoint_dir: Path  # persistent per cache key, for mid-step resume
+    seed: int
+    device: str  # "cpu" or "cuda"
+    log: logging.Logger
+
+    def progress(self, total: int, description: str = "", completed: int = 0) -> Progress: ...
+
+    def record(self, **values: Any) -> None: ...

@@ -1,0 +1,17 @@
+"""Shared test fixtures. ``../shared/data`` (beside the checkout) holds the dev/real/sample/lpips_ref data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.fail(f"{SHARED_DATA} is missing: CI and developers have ../shared beside the checkout")
+    return SHARED_DATA
