@@ -1,10 +1,13 @@
-"""Backend dispatch for the rendering API (see go_core.render for the contract)."""
+"""Backend dispatch for the rendering API (see go_core.render for the contract, docs/rendering.md for the maths)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import torch
+
+BACKENDS = ("auto", "cpu", "cuda", "reference")
+DEPTH_EPS = 1e-10
 
 
 @dataclass
@@ -23,8 +26,87 @@ class RenderOutput:
     radii: torch.Tensor
 
 
-def render(*args, **kwargs) -> RenderOutput:  # replaced by the rasterizer work (issue #3)
-    raise NotImplementedError("rasterizer backends are being written (issue #3)")
+def _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height) -> None:
+    n = means.shape[0]
+    if means.dim() != 2 or means.shape[1] != 3:
+        raise ValueError(f"means must be [N,3], got {tuple(means.shape)}")
+    for name, t, shape in (("quats", quats, (n, 4)), ("scales", scales, (n, 3)), ("opacities", opacities, (n,))):
+        if tuple(t.shape) != shape:
+            raise ValueError(f"{name} must be {list(shape)}, got {tuple(t.shape)}")
+    if colors.shape[0] != n:
+        raise ValueError(f"colors must have N={n} rows, got {tuple(colors.shape)}")
+    if viewmats.dim() != 3 or viewmats.shape[1:] != (4, 4):
+        raise ValueError(f"viewmats must be [C,4,4], got {tuple(viewmats.shape)}")
+    if Ks.shape != (viewmats.shape[0], 3, 3):
+        raise ValueError(f"Ks must be [C,3,3] matching viewmats, got {tuple(Ks.shape)}")
+    if int(width) <= 0 or int(height) <= 0:
+        raise ValueError(f"image size must be positive, got {width}x{height}")
+
+
+def _resolve_backend(backend: str, device: torch.device) -> str:
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown render backend {backend!r}; choose one of {BACKENDS}")
+    if backend == "auto":
+        return "cuda" if device.type == "cuda" else "cpu"
+    return backend
+
+
+def render(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None = None,
+    background: torch.Tensor | None = None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    antialiased: bool = False,
+    backend: str = "auto",
+) -> RenderOutput:
+    """Render N Gaussians into C cameras (contract in go_core.render)."""
+    _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height)
+    width, height = int(width), int(height)
+    kind = _resolve_backend(backend, means.device)
+    if kind == "cuda":
+        from go_core.render.gsplat_backend import render_gsplat
+
+        out = render_gsplat(
+            means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+            sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased,
+        )
+    else:
+        from go_core.render.projection import project_gaussians
+
+        proj = project_gaussians(
+            means, quats, scales, opacities, colors, viewmats, Ks, width, height,
+            sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased,
+        )
+        feats = torch.cat([proj.colors, proj.depths[..., None]], dim=-1)  # depth as a 4th channel
+        if kind == "reference":
+            from go_core.render.reference import rasterize_reference
+
+            acc, alpha = rasterize_reference(
+                proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
+            )
+        else:
+            from go_core.render.cpu import rasterize_cpu
+
+            acc, alpha = rasterize_cpu(
+                proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
+            )
+        depth = acc[..., 3:4] / torch.clamp_min(alpha, DEPTH_EPS)
+        out = RenderOutput(acc[..., :3], alpha, depth, proj.means2d, proj.radii)
+    if background is not None:
+        bg = background.to(out.rgb.dtype)
+        bg = bg.reshape(-1, 1, 1, 3) if bg.dim() == 2 else bg.reshape(1, 1, 1, 3)
+        out.rgb = out.rgb + (1.0 - out.alpha) * bg
+    return out
 
 
 def render_gaussians(gaussians, viewmats, Ks, width, height, **kwargs) -> RenderOutput:

@@ -19,6 +19,7 @@ class View:
     image: np.ndarray = field(repr=False)
     mask: np.ndarray | None = field(default=None, repr=False)
     source: Path | None = None  # the image file it came from
+    mask_source: Path | None = None  # the mask file, when the mask came from its own file (else None)
 
     @property
     def name(self) -> str:
@@ -33,6 +34,7 @@ class Scene:
     format: str
     train: list[View]
     test: list[View]
+    split_source: str = ""  # where the train/test split came from (e.g. "sparse_4.txt", "transforms_*.json")
 
     @property
     def train_cameras(self) -> list[Camera]:

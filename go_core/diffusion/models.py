@@ -1,0 +1,248 @@
+"""Loading the repair model (SD 1.5 + ControlNet v1.1 tile + CLIP text encoder) from local paths.
+
+Nothing is downloaded: every weight comes from a path given in the step params or the environment.
+Accepted forms:
+
+* a diffusers folder: SD1.5 as a pipeline folder (``model_index.json``, ``unet/``, ``vae/``,
+  ``text_encoder/``, ``tokenizer/``, ``scheduler/``), the ControlNet as a model folder (``config.json``
+  + weights);
+* an original single file (``.ckpt`` / ``.safetensors`` / ``.pth``) loaded through diffusers' single-file
+  loaders. Offline, those loaders need the diffusers *configs* of the model: give a folder in the diffusers
+  layout holding the config/tokenizer files (weights not needed) as ``single_file_config``.
+* ``clip_path`` (optional): a transformers CLIPTextModel folder (CLIP ViT-L/14 text tower) that replaces the
+  SD folder's ``text_encoder``; a ``tokenizer/`` inside it (or the folder itself) replaces the tokenizer.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from go_core.errors import MissingWeightsError
+
+ENV_SD15 = "GO_SD15_PATH"
+ENV_CONTROLNET = "GO_CONTROLNET_TILE_PATH"
+ENV_CLIP = "GO_CLIP_PATH"
+ENV_SINGLE_FILE_CONFIG = "GO_SD15_CONFIG"
+
+SINGLE_FILE_SUFFIXES = (".ckpt", ".safetensors", ".pth", ".pt", ".bin")
+
+HOW_TO_GET = {
+    "sd15": (
+        "Stable Diffusion 1.5: download the diffusers folder 'stable-diffusion-v1-5/stable-diffusion-v1-5' "
+        "(or the single file v1-5-pruned-emaonly.safetensors) on a machine with internet and set "
+        f"params.sd15_path or ${ENV_SD15}"
+    ),
+    "controlnet": (
+        "ControlNet v1.1 tile: download 'lllyasviel/control_v11f1e_sd15_tile' (diffusers folder, or the "
+        f"single file control_v11f1e_sd15_tile.pth) and set params.controlnet_path or ${ENV_CONTROLNET}"
+    ),
+    "clip": (
+        "CLIP ViT-L/14 text encoder: the SD1.5 folder's text_encoder/ is used; to override, download "
+        f"'openai/clip-vit-large-patch14' and set params.clip_path or ${ENV_CLIP}"
+    ),
+    "config": (
+        "single-file weights need the diffusers configs offline: give a diffusers-layout folder with the "
+        f"config.json/tokenizer files as params.single_file_config or ${ENV_SINGLE_FILE_CONFIG}"
+    ),
+}
+
+
+@dataclass
+class RepairModels:
+    """The pieces of the repair model. ``tokenizer`` may be None only for timing runs without text input."""
+
+    unet: Any
+    controlnet: Any
+    vae: Any
+    text_encoder: Any
+    tokenizer: Any
+    scheduler: Any  # a diffusers DDIMScheduler (its add_noise / alphas_cumprod also serve training)
+    sources: dict[str, str] = field(default_factory=dict)
+
+    def modules(self) -> dict[str, torch.nn.Module]:
+        return {
+            "unet": self.unet,
+            "controlnet": self.controlnet,
+            "vae": self.vae,
+            "text_encoder": self.text_encoder,
+        }
+
+    def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> RepairModels:
+        for m in self.modules().values():
+            current = next(m.parameters()).dtype
+            m.to(device=device, dtype=dtype if dtype is not None and dtype != current else None)
+        return self
+
+
+@dataclass(frozen=True)
+class WeightPaths:
+    """Where the weights live (empty string: not given)."""
+
+    sd15: str = ""
+    controlnet: str = ""
+    clip: str = ""
+    single_file_config: str = ""
+
+    @staticmethod
+    def resolve(params: dict, env: dict[str, str] | None = None) -> WeightPaths:
+        """Params win over the environment (``GO_SD15_PATH``, ``GO_CONTROLNET_TILE_PATH``, ...)."""
+        env = dict(os.environ) if env is None else env
+        return WeightPaths(
+            sd15=str(params.get("sd15_path") or env.get(ENV_SD15, "")),
+            controlnet=str(params.get("controlnet_path") or env.get(ENV_CONTROLNET, "")),
+            clip=str(params.get("clip_path") or env.get(ENV_CLIP, "")),
+            single_file_config=str(params.get("single_file_config") or env.get(ENV_SINGLE_FILE_CONFIG, "")),
+        )
+
+    def describe(self) -> dict[str, str]:
+        return {
+            "sd15": self.sd15,
+            "controlnet": self.controlnet,
+            "clip": self.clip,
+            "single_file_config": self.single_file_config,
+        }
+
+
+def precision_dtypes(device: str, precision: str = "auto") -> tuple[torch.dtype, torch.dtype | None]:
+    """(base weight dtype, autocast dtype) for a device and a precision name.
+
+    CPU: always float32 (no autocast). CUDA: "auto"/"bf16" → bfloat16 weights and autocast, "fp16" → float16,
+    "fp32" → float32 without autocast. LoRA tensors are kept in float32 in every case.
+    """
+    if not str(device).startswith("cuda") or precision == "fp32":
+        return torch.float32, None
+    dtype = {"auto": torch.bfloat16, "bf16": torch.bfloat16, "fp16": torch.float16}.get(precision)
+    if dtype is None:
+        raise ValueError(f"precision must be auto, bf16, fp16 or fp32, got {precision!r}")
+    return dtype, dtype
+
+
+def _is_single_file(path: Path) -> bool:
+    return path.is_file() and path.suffix.lower() in SINGLE_FILE_SUFFIXES
+
+
+def missing_weights(paths: WeightPaths, need_controlnet: bool = True) -> list[str]:
+    """Human-readable problems with ``paths`` (empty list: everything needed is present)."""
+    problems: list[str] = []
+
+    def check(kind: str, value: str, folder_marker: str) -> None:
+        if not value:
+            problems.append(f"{kind} weights not given. {HOW_TO_GET[kind]}")
+            return
+        p = Path(value).expanduser()
+        if _is_single_file(p):
+            if not paths.single_file_config:
+                problems.append(f"{kind}: {p} is a single file. {HOW_TO_GET['config']}")
+            return
+        if not p.is_dir() or not (p / folder_marker).is_file():
+            problems.append(
+                f"{kind}: {p} is not a diffusers folder (no {folder_marker}) nor a single weights "
+                f"file. {HOW_TO_GET[kind]}"
+            )
+
+    check("sd15", paths.sd15, "model_index.json")
+    if need_controlnet:
+        check("controlnet", paths.controlnet, "config.json")
+    if paths.clip and not (Path(paths.clip).expanduser() / "config.json").is_file():
+        problems.append(f"clip: {paths.clip} has no config.json. {HOW_TO_GET['clip']}")
+    return problems
+
+
+def require_weights(paths: WeightPaths, need_controlnet: bool = True) -> None:
+    """Raise one MissingWeightsError listing everything missing and how to obtain it."""
+    problems = missing_weights(paths, need_controlnet)
+    if problems:
+        raise MissingWeightsError("repair model weights missing: " + " | ".join(problems))
+
+
+def _load_sd_components(paths: WeightPaths, dtype: torch.dtype) -> dict[str, Any]:
+    from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
+    from transformers import CLIPTextModel, CLIPTokenizer
+
+    sd = Path(paths.sd15).expanduser()
+    if _is_single_file(sd):
+        from diffusers import StableDiffusionPipeline
+
+        cfg = Path(paths.single_file_config).expanduser()
+        pipe = StableDiffusionPipeline.from_single_file(
+            str(sd),
+            config=str(cfg),
+            local_files_only=True,
+            torch_dtype=dtype,
+            safety_checker=None,
+            requires_safety_checker=False,
+        )
+        parts = {
+            "unet": pipe.unet,
+            "vae": pipe.vae,
+            "text_encoder": pipe.text_encoder,
+            "tokenizer": pipe.tokenizer,
+        }
+        sched_dir = cfg / "scheduler"
+    else:
+        parts = {
+            "unet": UNet2DConditionModel.from_pretrained(
+                sd, subfolder="unet", torch_dtype=dtype, local_files_only=True
+            ),
+            "vae": AutoencoderKL.from_pretrained(
+                sd, subfolder="vae", torch_dtype=dtype, local_files_only=True
+            ),
+            "text_encoder": CLIPTextModel.from_pretrained(
+                sd, subfolder="text_encoder", dtype=dtype, local_files_only=True
+            ),
+            "tokenizer": CLIPTokenizer.from_pretrained(sd, subfolder="tokenizer", local_files_only=True),
+        }
+        sched_dir = sd / "scheduler"
+    if (sched_dir / "scheduler_config.json").is_file():
+        parts["scheduler"] = DDIMScheduler.from_pretrained(sched_dir, local_files_only=True)
+    else:
+        from go_core.diffusion.configs import SD15_SCHEDULER
+
+        parts["scheduler"] = DDIMScheduler(**SD15_SCHEDULER)
+    if paths.clip:
+        clip = Path(paths.clip).expanduser()
+        parts["text_encoder"] = CLIPTextModel.from_pretrained(clip, dtype=dtype, local_files_only=True)
+        tok = clip / "tokenizer" if (clip / "tokenizer").is_dir() else clip
+        if (tok / "vocab.json").is_file() or (tok / "tokenizer.json").is_file():
+            parts["tokenizer"] = CLIPTokenizer.from_pretrained(tok, local_files_only=True)
+    return parts
+
+
+def _load_controlnet(paths: WeightPaths, dtype: torch.dtype, unet: Any) -> Any:
+    from diffusers import ControlNetModel
+
+    cn = Path(paths.controlnet).expanduser()
+    if _is_single_file(cn):
+        cfg = Path(paths.single_file_config).expanduser()
+        cfg = cfg / "controlnet" if (cfg / "controlnet" / "config.json").is_file() else cfg
+        return ControlNetModel.from_single_file(
+            str(cn), config=str(cfg), local_files_only=True, torch_dtype=dtype
+        )
+    return ControlNetModel.from_pretrained(cn, torch_dtype=dtype, local_files_only=True)
+
+
+def load_repair_models(
+    paths: WeightPaths, device: str = "cpu", dtype: torch.dtype = torch.float32
+) -> RepairModels:
+    """Load every piece from local paths (raises MissingWeightsError first when something is missing).
+
+    All base weights are frozen (``requires_grad=False``) and in eval mode; LoRA adds the trainable part.
+    """
+    require_weights(paths)
+    try:
+        parts = _load_sd_components(paths, dtype)
+        cn = _load_controlnet(paths, dtype, parts["unet"])
+    except (OSError, ValueError) as exc:  # unreadable / incompatible files: still a weights problem
+        raise MissingWeightsError(
+            f"could not load the repair model from {paths.describe()}: {str(exc).splitlines()[0]}"
+        ) from exc
+    models = RepairModels(controlnet=cn, sources=paths.describe(), **parts)
+    for m in models.modules().values():
+        m.requires_grad_(False)
+        m.eval()
+    return models.to(device, dtype)

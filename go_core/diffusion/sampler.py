@@ -1,0 +1,167 @@
+"""The repair model at work: ε-prediction tuning loss, and SDEdit + DDIM repair of a render.
+
+Images are float tensors [B, 3, H, W] in [0, 1] with H, W multiples of 64 (see ``frame.Frame``). The
+ControlNet (tile) is conditioned on the degraded render itself, the text on the Dreambooth-style prompt.
+On CUDA the forward/backward runs under autocast in ``autocast_dtype`` (fp16/bf16); on CPU in float32.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from go_core.diffusion.models import RepairModels
+
+DEFAULT_PROMPT = "a photo of xxy5syt00"
+
+
+@dataclass
+class RepairResult:
+    images: torch.Tensor  # [B, 3, H, W] in [0, 1]
+    timestep: int  # the SDEdit noise level t (in training timesteps, 0..T-1)
+    steps: int  # DDIM steps run (⌊num_inference_steps · t / T⌋, at least 1)
+
+
+class RepairDiffusion:
+    """Wraps RepairModels with the prompt, device and precision used by the lora and repair steps."""
+
+    def __init__(
+        self,
+        models: RepairModels,
+        prompt: str = DEFAULT_PROMPT,
+        device: str = "cpu",
+        autocast_dtype: torch.dtype | None = None,
+        guidance_scale: float = 1.0,
+        conditioning_scale: float = 1.0,
+    ) -> None:
+        from diffusers import DDIMScheduler
+
+        self.models = models
+        self.prompt = prompt
+        self.device = torch.device(device)
+        self.autocast_dtype = autocast_dtype if self.device.type == "cuda" else None
+        self.guidance_scale = guidance_scale
+        self.conditioning_scale = conditioning_scale
+        self.scheduler = DDIMScheduler.from_config(models.scheduler.config)  # own copy: set_timesteps mutates
+        self.num_train_timesteps = int(self.scheduler.config.num_train_timesteps)
+        self.alphas_cumprod = self.scheduler.alphas_cumprod.to(torch.float64)
+        self.vae_scale = float(getattr(models.vae.config, "scaling_factor", 0.18215))
+
+    # Precision ---------------------------------------------------------------------------------------------
+    def autocast(self):
+        if self.autocast_dtype is None:
+            return contextlib.nullcontext()
+        return torch.autocast(self.device.type, dtype=self.autocast_dtype)
+
+    # Pieces -----------------------------------------------------------------------------------------------
+    def text_embeddings(self, prompt: str | None = None, batch: int = 1) -> torch.Tensor:
+        tok = self.models.tokenizer
+        ids = tok(
+            prompt if prompt is not None else self.prompt,
+            padding="max_length",
+            max_length=tok.model_max_length,
+            truncation=True,
+            return_tensors="pt",
+        ).input_ids
+        with self.autocast():
+            emb = self.models.text_encoder(ids.to(self.device))[0]
+        return emb.expand(batch, -1, -1)
+
+    def encode(self, images: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        vae = self.models.vae
+        x = (images.to(self.device) * 2.0 - 1.0).to(next(vae.parameters()).dtype)
+        with self.autocast():
+            dist = vae.encode(x).latent_dist
+        return dist.sample(generator=generator).float() * self.vae_scale
+
+    def decode(self, latents: torch.Tensor) -> torch.Tensor:
+        vae = self.models.vae
+        with self.autocast():
+            x = vae.decode((latents / self.vae_scale).to(next(vae.parameters()).dtype)).sample
+        return ((x.float() + 1.0) / 2.0).clamp(0.0, 1.0)
+
+    def predict_noise(
+        self, noisy: torch.Tensor, t: torch.Tensor, cond: torch.Tensor, text: torch.Tensor
+    ) -> torch.Tensor:
+        """ε̂(z_t, t | prompt, ControlNet(cond))."""
+        m = self.models
+        dtype = next(m.unet.parameters()).dtype
+        with self.autocast():
+            down, mid = m.controlnet(
+                noisy.to(dtype),
+                t,
+                encoder_hidden_states=text.to(dtype),
+                controlnet_cond=cond.to(self.device, dtype),
+                conditioning_scale=self.conditioning_scale,
+                return_dict=False,
+            )
+            eps = m.unet(
+                noisy.to(dtype),
+                t,
+                encoder_hidden_states=text.to(dtype),
+                down_block_additional_residuals=down,
+                mid_block_additional_residual=mid,
+            ).sample
+        return eps.float()
+
+    # Tuning ----------------------------------------------------------------------------------------------
+    def tuning_loss(
+        self, degraded: torch.Tensor, clean: torch.Tensor, generator: torch.Generator
+    ) -> torch.Tensor:
+        """ε-prediction MSE: noise the clean latent, predict the noise with the ControlNet on the degraded."""
+        b = clean.shape[0]
+        with torch.no_grad():
+            z0 = self.encode(clean, generator)
+        noise = torch.randn(z0.shape, generator=generator, dtype=z0.dtype, device="cpu").to(z0.device)
+        t = torch.randint(0, self.num_train_timesteps, (b,), generator=generator, device="cpu").to(
+            self.device
+        )
+        zt = self.scheduler.add_noise(z0, noise, t)
+        eps = self.predict_noise(zt, t, degraded, self.text_embeddings(batch=b))
+        return F.mse_loss(eps, noise)
+
+    # Repair ----------------------------------------------------------------------------------------------
+    def steps_for(self, t_frac: float, num_inference_steps: int = 50) -> int:
+        """⌊num_inference_steps · t/T⌋ DDIM steps, at least one."""
+        return max(1, min(num_inference_steps, math.floor(num_inference_steps * t_frac)))
+
+    @torch.no_grad()
+    def repair(
+        self,
+        render: torch.Tensor,
+        t_frac: float,
+        generator: torch.Generator,
+        num_inference_steps: int = 50,
+        eta: float = 1.0,
+    ) -> RepairResult:
+        """SDEdit: encode the render, noise it to level t ≈ t_frac·T, denoise with DDIM (ControlNet on the
+        render) for ⌊50·t/T⌋ steps and decode. ``eta``: DDIM stochasticity (1.0 as in the authors' code)."""
+        k = self.steps_for(t_frac, num_inference_steps)
+        self.scheduler.set_timesteps(num_inference_steps)
+        timesteps = self.scheduler.timesteps[-k:]
+        b = render.shape[0]
+        z0 = self.encode(render, generator)
+        noise = torch.randn(z0.shape, generator=generator, dtype=z0.dtype, device="cpu").to(z0.device)
+        z = self.scheduler.add_noise(z0, noise, timesteps[:1].repeat(b).to(self.device))
+        text = self.text_embeddings(batch=b)
+        cfg = self.guidance_scale > 1.0
+        if cfg:
+            text = torch.cat([self.text_embeddings("", batch=b), text])
+        for t in timesteps:
+            tt = t.to(self.device)
+            if cfg:
+                e_u, e_c = self.predict_noise(torch.cat([z, z]), tt, torch.cat([render, render]), text).chunk(
+                    2
+                )
+                eps = e_u + self.guidance_scale * (e_c - e_u)
+            else:
+                eps = self.predict_noise(z, tt, render, text)
+            noise_t = None
+            if eta > 0:
+                noise_t = torch.randn(z.shape, generator=generator, dtype=z.dtype, device="cpu").to(z.device)
+            z = self.scheduler.step(eps, t, z, eta=eta, variance_noise=noise_t).prev_sample
+        return RepairResult(self.decode(z), int(timesteps[0]), k)

@@ -1,0 +1,143 @@
+"""The coarse-stage loss terms, one named function each (paper Sec. 3.3 + 3DGS).
+
+Image tensors are accepted as [B,3,H,W] or [H,W,3] (a single image, channels last, as the renderer returns
+per camera) or [B,H,W,3] when ``channels_last=True``; all functions are differentiable.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_C1 = 0.01**2  # (K1·L)² with L = 1
+SSIM_C2 = 0.03**2
+
+
+def _as_bchw(img: torch.Tensor, channels_last: bool = False) -> torch.Tensor:
+    """[H,W,C] (C in 1, 3) → [1,C,H,W]; [C,H,W] → [1,C,H,W]; [B,C,H,W] unchanged; [B,H,W,C] with
+    ``channels_last``."""
+    if img.dim() == 3:
+        return img.permute(2, 0, 1).unsqueeze(0) if img.shape[-1] in (1, 3) else img.unsqueeze(0)
+    if img.dim() == 4:
+        return img.permute(0, 3, 1, 2) if channels_last else img
+    raise ValueError(f"expected an image [H,W,3], [C,H,W] or a batch [B,C,H,W], got shape {tuple(img.shape)}")
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, *, dtype=torch.float32, device=None):
+    """Normalised 2D Gaussian window [size, size] (the separable 1D kernel's outer product)."""
+    x = torch.arange(size, dtype=torch.float64, device=device) - (size - 1) / 2.0
+    g = torch.exp(-(x**2) / (2.0 * sigma**2))
+    g = g / g.sum()
+    return torch.outer(g, g).to(dtype)
+
+
+def ssim_map(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = False) -> torch.Tensor:
+    """Per-pixel SSIM [B,C,H,W] with the 3DGS settings: 11×11 Gaussian window (σ = 1.5), zero padding of 5
+    pixels (the output keeps the input size), C1 = 0.01², C2 = 0.03² for images in [0, 1]."""
+    a = _as_bchw(img1, channels_last)
+    b = _as_bchw(img2, channels_last)
+    if a.shape != b.shape:
+        raise ValueError(f"ssim: image shapes differ {tuple(a.shape)} vs {tuple(b.shape)}")
+    c = a.shape[1]
+    g = gaussian_window(dtype=torch.float64).sum(0).to(device=a.device, dtype=a.dtype)  # separable 1D kernel
+    # the five filtered maps in one grouped, separable convolution (== 2D filtering with zero padding)
+    x = torch.cat([a, b, a * a, b * b, a * b], dim=1)
+    k = 5 * c
+    wv = g.view(1, 1, SSIM_WINDOW, 1).expand(k, 1, SSIM_WINDOW, 1).contiguous()
+    wh = g.view(1, 1, 1, SSIM_WINDOW).expand(k, 1, 1, SSIM_WINDOW).contiguous()
+    pad = SSIM_WINDOW // 2
+    y = F.conv2d(F.conv2d(x, wv, padding=(pad, 0), groups=k), wh, padding=(0, pad), groups=k)
+    mu1, mu2, e11, e22, e12 = y.split(c, dim=1)
+    mu1_sq, mu2_sq, mu12 = mu1 * mu1, mu2 * mu2, mu1 * mu2
+    s1, s2, s12 = e11 - mu1_sq, e22 - mu2_sq, e12 - mu12
+    return ((2 * mu12 + SSIM_C1) * (2 * s12 + SSIM_C2)) / ((mu1_sq + mu2_sq + SSIM_C1) * (s1 + s2 + SSIM_C2))
+
+
+def ssim(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = False) -> torch.Tensor:
+    """Mean SSIM (scalar tensor, differentiable) of two images or batches in [0, 1], 3DGS convention.
+
+    Accepts [B,3,H,W], a single [H,W,3] image, or [B,H,W,3] with ``channels_last=True``. Note: scikit-image's
+    ``structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1)``
+    averages only over pixels whose window lies inside the image; ``ssim_map(...)[..., 5:-5, 5:-5].mean()``
+    equals it to float precision.
+    """
+    return ssim_map(img1, img2, channels_last=channels_last).mean()
+
+
+def l1(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean absolute error; with ``weight`` (broadcastable), a weighted mean."""
+    d = (pred - target).abs()
+    if weight is None:
+        return d.mean()
+    w = weight.expand_as(d)
+    return (d * w).sum() / w.sum().clamp_min(1e-12)
+
+
+def dssim(pred: torch.Tensor, target: torch.Tensor, *, channels_last: bool = False) -> torch.Tensor:
+    """Structural dissimilarity ``1 - SSIM`` (the 3DGS loss uses this, not (1-SSIM)/2)."""
+    return 1.0 - ssim(pred, target, channels_last=channels_last)
+
+
+def photometric_loss(
+    pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2, *, channels_last: bool = False
+) -> torch.Tensor:
+    """``(1-λ)·L1 + λ·D-SSIM`` (3DGS, λ = 0.2)."""
+    return (1.0 - lambda_dssim) * l1(pred, target) + lambda_dssim * dssim(pred, target, channels_last=channels_last)
+
+
+def mask_bce(alpha: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
+    """Binary cross-entropy between the rendered opacity and the (possibly fractional) object mask.
+
+    Shapes must broadcast ([C,H,W,1] vs [C,H,W,1] or [C,H,W]). Alpha is clamped to [eps, 1-eps] so the loss
+    stays finite where the model is fully opaque or empty.
+    """
+    if alpha.shape != mask.shape and alpha.dim() == mask.dim() + 1 and alpha.shape[-1] == 1:
+        alpha = alpha[..., 0]
+    a = alpha.clamp(eps, 1.0 - eps)
+    return F.binary_cross_entropy(a, mask.to(a.dtype))
+
+
+def normalize_depth(depth: torch.Tensor, valid: torch.Tensor | None = None, eps: float = 1e-8) -> torch.Tensor:
+    """Shift/scale-normalised depth ``D* = (D - median(D)) / mean(|D - median(D)|)`` over the valid pixels.
+
+    The statistics use only ``valid`` pixels (bool, same shape) when given; the result has the input's shape
+    (invalid pixels carry meaningless values, mask them out). Invariant to ``D → s·D + t`` for s > 0.
+    """
+    d = depth.reshape(-1)
+    v = d if valid is None else d[valid.reshape(-1)]
+    if v.numel() == 0:
+        return torch.zeros_like(depth)
+    med = v.median()
+    mad = (v - med).abs().mean()
+    return (depth - med) / (mad + eps)
+
+
+def depth_loss(
+    rendered: torch.Tensor, prior: torch.Tensor, valid: torch.Tensor | None = None, eps: float = 1e-8
+) -> torch.Tensor:
+    """Shift/scale-invariant depth loss: L1 between the median/MAD-normalised rendered depth and prior,
+    averaged over ``valid`` pixels (e.g. inside the mask). Both maps are per-view [H,W] (or [H,W,1])."""
+    r = rendered.reshape(prior.shape) if rendered.numel() == prior.numel() else rendered
+    if valid is not None:
+        valid = valid.reshape(prior.shape).bool()
+        if not bool(valid.any()):
+            return rendered.sum() * 0.0
+    nr = normalize_depth(r, valid, eps)
+    npr = normalize_depth(prior, valid, eps)
+    d = (nr - npr).abs()
+    return d[valid].mean() if valid is not None else d.mean()
+
+
+__all__ = [
+    "depth_loss",
+    "dssim",
+    "gaussian_window",
+    "l1",
+    "mask_bce",
+    "normalize_depth",
+    "photometric_loss",
+    "ssim",
+    "ssim_map",
+]

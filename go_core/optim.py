@@ -1,0 +1,142 @@
+"""Gaussian parameters + their Adam optimiser, with the row operations densification needs.
+
+One Adam parameter group per tensor (as in 3DGS), so each has its own learning rate. Pruning, appending and
+resetting rows keep the Adam moments of the surviving rows and start new rows at zero moments, which is what
+3DGS / gsplat do. Everything here is deterministic; state round-trips exactly through ``state_dict``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from go_core.gaussians import Gaussians
+
+PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
+
+
+@dataclass
+class LearningRates:
+    """3DGS learning rates; ``means`` is multiplied by the scene extent, and decays exponentially."""
+
+    means_init: float = 1.6e-4
+    means_final: float = 1.6e-6
+    means_max_steps: int = 30_000
+    sh0: float = 2.5e-3
+    shN: float = 2.5e-3 / 20.0
+    opacity: float = 0.05
+    scaling: float = 5e-3
+    rotation: float = 1e-3
+
+    def means_at(self, step: int, extent: float) -> float:
+        """Log-linear decay from init to final over ``means_max_steps`` (the 3DGS schedule without delay)."""
+        t = min(max(step / max(self.means_max_steps, 1), 0.0), 1.0)
+        return math.exp(math.log(self.means_init) * (1 - t) + math.log(self.means_final) * t) * extent
+
+
+class GaussianOptimizer:
+    """Trainable Gaussian tensors (``sh`` split into DC ``sh0`` and rest ``shN`` for their learning rates)."""
+
+    def __init__(self, gaussians: Gaussians, lrs: LearningRates, extent: float) -> None:
+        g = gaussians.detach()
+        self.lrs = lrs
+        self.extent = float(extent)
+        tensors = {
+            "means": g.means,
+            "quats": g.quats,
+            "log_scales": g.log_scales,
+            "opacity_logits": g.opacity_logits,
+            "sh0": g.sh[:, :1].contiguous(),
+            "shN": g.sh[:, 1:].contiguous(),
+        }
+        self.params: dict[str, torch.nn.Parameter] = {
+            k: torch.nn.Parameter(v.to(torch.float32).contiguous()) for k, v in tensors.items()
+        }
+        lr = {
+            "means": lrs.means_init * self.extent,
+            "quats": lrs.rotation,
+            "log_scales": lrs.scaling,
+            "opacity_logits": lrs.opacity,
+            "sh0": lrs.sh0,
+            "shN": lrs.shN,
+        }
+        self.optimizer = torch.optim.Adam(
+            [{"params": [self.params[k]], "lr": lr[k], "name": k} for k in PARAM_NAMES], eps=1e-15
+        )
+
+    # Views -------------------------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return int(self.params["means"].shape[0])
+
+    def gaussians(self) -> Gaussians:
+        """The current set as a differentiable view of the parameters."""
+        p = self.params
+        return Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], torch.cat([p["sh0"], p["shN"]], 1))
+
+    def snapshot(self) -> Gaussians:
+        return self.gaussians().detach()
+
+    def set_means_lr(self, step: int) -> float:
+        lr = self.lrs.means_at(step, self.extent)
+        for group in self.optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr"] = lr
+        return lr
+
+    def step(self) -> None:
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+
+    # Row operations ---------------------------------------------------------------------------------------
+    def _replace(self, name: str, new: torch.Tensor, state_fn) -> None:
+        """Swap parameter ``name`` for ``new`` and map its Adam state with ``state_fn(old_state_tensor)``."""
+        old = self.params[name]
+        param = torch.nn.Parameter(new.contiguous())
+        for group in self.optimizer.param_groups:
+            if group["params"][0] is old:
+                group["params"][0] = param
+        state = self.optimizer.state.pop(old, None)
+        if state is not None:
+            self.optimizer.state[param] = {
+                k: (v if k == "step" else state_fn(v).contiguous()) for k, v in state.items()
+            }
+        self.params[name] = param
+
+    @torch.no_grad()
+    def keep(self, mask: torch.Tensor) -> None:
+        """Keep only rows where ``mask`` is True (pruning)."""
+        for name in PARAM_NAMES:
+            self._replace(name, self.params[name].detach()[mask], lambda s, m=mask: s[m])
+
+    @torch.no_grad()
+    def append(self, rows: dict[str, torch.Tensor]) -> None:
+        """Append new rows (raw parameter values per name); their Adam moments start at zero."""
+        for name in PARAM_NAMES:
+            new = rows[name].to(self.params[name].dtype)
+            self._replace(
+                name,
+                torch.cat([self.params[name].detach(), new]),
+                lambda s, n=new: torch.cat([s, torch.zeros((n.shape[0], *s.shape[1:]), dtype=s.dtype)]),
+            )
+
+    @torch.no_grad()
+    def reset(self, name: str, value: torch.Tensor) -> None:
+        """Overwrite a whole parameter (e.g. the opacity reset) and zero its Adam moments."""
+        self._replace(name, value.to(self.params[name].dtype).clone(), torch.zeros_like)
+
+    # Persistence ------------------------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        return {
+            "params": {k: v.detach().clone() for k, v in self.params.items()},
+            "optimizer": self.optimizer.state_dict(),
+            "extent": self.extent,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.extent = float(state["extent"])
+        self.params = {k: torch.nn.Parameter(state["params"][k].clone()) for k in PARAM_NAMES}
+        groups = [{"params": [self.params[k]], "lr": 0.0, "name": k} for k in PARAM_NAMES]
+        self.optimizer = torch.optim.Adam(groups, eps=1e-15)
+        self.optimizer.load_state_dict(state["optimizer"])

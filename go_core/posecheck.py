@@ -1,0 +1,415 @@
+"""COLMAP-checked poses: do the given cameras agree with the images?
+
+1. pycolmap extracts SIFT features (inside each view's mask when it has one, so a turntable background
+   cannot vote) and matches them exhaustively with two-view geometric verification. Verification uses
+   only the images, never the given poses.
+2. Verified matches are chained into tracks (union-find over (image, keypoint)); tracks that hit one
+   image twice are dropped.
+3. Every observation is checked against the GIVEN poses, which stay fixed: the track's point is
+   triangulated (linear DLT, given K and world_to_cam) from the track's OTHER images, and reprojected
+   into the held-out image. Leaving the image out means a wrong pose cannot pull the point towards its own
+   observation, and a wrong pose in another image only affects the few tracks it shares.
+4. Per image: median (robust) and mean reprojection error over its observations; an image whose median
+   error is above ``threshold_px`` (scaled to the image size) is flagged.
+
+``estimate_poses`` runs pycolmap incremental SfM for scenes without poses.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from go_core.camera import Camera
+from go_core.errors import GoError
+
+PEAK_THRESHOLD = 0.002  # SIFT DoG peak threshold: below COLMAP's 0.0067 for the smooth objects we scan
+
+
+class PoseCheckError(GoError):
+    """The pose check could not run (too few views, no matches, ...)."""
+
+
+@dataclass
+class ImagePoseResult:
+    name: str
+    verified_pairs: int  # image pairs with enough geometrically verified matches
+    consistent_pairs: int  # ... of which agree with the given poses (epipolar error <= threshold)
+    best_pair_epipolar_px: float | None
+    observations: int  # leave-one-out reprojections checked (tracks with >= 3 views)
+    median_px: float | None  # median leave-one-out reprojection error
+    p90_px: float | None
+    flagged: bool
+    status: str = "ok"  # ok | flagged | unverified
+    reason: str = ""
+
+
+@dataclass
+class PoseCheckReport:
+    threshold_px: float
+    images: list[ImagePoseResult]
+    num_tracks: int
+    num_verified_pairs: int
+    flagged: list[str] = field(default_factory=list)
+    unverified: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.flagged
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["ok"] = self.ok
+        return d
+
+
+def _write_inputs(views, root: Path, dilate_px: int, use_masks: bool = True) -> tuple[list[str], bool]:
+    """PNG images (and masks for pycolmap's reader: features only where the mask is > 0) into ``root``."""
+    import cv2
+
+    img_dir, mask_dir = root / "images", root / "masks"
+    img_dir.mkdir(parents=True)
+    mask_dir.mkdir()
+    names, have_masks = [], use_masks and all(v.mask is not None for v in views)
+    for i, v in enumerate(views):
+        name = f"{i:04d}.png"
+        rgb = (np.clip(v.image, 0, 1) * 255 + 0.5).astype(np.uint8)
+        cv2.imwrite(str(img_dir / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        if have_masks:
+            m = (np.asarray(v.mask) > 0.5).astype(np.uint8) * 255
+            if dilate_px > 0:
+                m = cv2.dilate(m, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+            cv2.imwrite(str(mask_dir / f"{name}.png"), m)  # COLMAP: mask of a.png is a.png.png
+        names.append(name)
+    return names, have_masks
+
+
+def _quiet(pycolmap) -> None:
+    """COLMAP logs every stage at INFO on stderr; keep warnings and errors only."""
+    try:
+        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
+    except (AttributeError, TypeError, ValueError):
+        pass
+
+
+def extract_and_match(
+    views,
+    work: Path,
+    max_features: int = 4096,
+    num_threads: int = 2,
+    dilate_px: int = 3,
+    peak_threshold: float = PEAK_THRESHOLD,
+    use_masks: bool = True,
+    camera_model: str | None = None,
+) -> tuple[list[np.ndarray], dict[tuple[int, int], np.ndarray]]:
+    """SIFT + exhaustive matching + geometric verification with pycolmap.
+
+    Returns per-view keypoint xy [N,2] (COLMAP pixel convention = ours: pixel centres at +0.5) and
+    {(i, j): inlier match index pairs [M,2]} for i < j (view indices).
+    """
+    import pycolmap
+
+    names, have_masks = _write_inputs(views, work, dilate_px, use_masks)
+    _quiet(pycolmap)
+    db_path = work / "database.db"
+    reader = pycolmap.ImageReaderOptions()
+    if have_masks:
+        reader.mask_path = str(work / "masks")
+    if camera_model:
+        reader.camera_model = camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = num_threads
+    extraction.use_gpu = False
+    extraction.sift.max_num_features = max_features
+    extraction.sift.peak_threshold = peak_threshold
+    pycolmap.extract_features(
+        db_path,
+        work / "images",
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE if camera_model else pycolmap.CameraMode.PER_IMAGE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    matching.use_gpu = False
+    pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+
+    db = pycolmap.Database.open(db_path)
+    try:
+        id_to_index = {img.image_id: names.index(img.name) for img in db.read_all_images()}
+        keypoints = [np.zeros((0, 2))] * len(views)
+        for image_id, idx in id_to_index.items():
+            keypoints[idx] = np.asarray(db.read_keypoints(image_id))[:, :2].astype(np.float64)
+        pair_ids, geometries = db.read_two_view_geometries()
+        matches: dict[tuple[int, int], np.ndarray] = {}
+        for pair_id, geom in zip(pair_ids, geometries, strict=True):
+            inl = np.asarray(geom.inlier_matches)
+            if inl.size == 0:
+                continue
+            id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
+            i, j = id_to_index[id1], id_to_index[id2]
+            if i > j:
+                i, j, inl = j, i, inl[:, ::-1]
+            matches[(i, j)] = inl.astype(np.int64)
+    finally:
+        db.close()
+    return keypoints, matches
+
+
+def build_tracks(num_keypoints: list[int], matches: dict[tuple[int, int], np.ndarray]) -> list[np.ndarray]:
+    """Union-find tracks: each an array [[view, keypoint], ...] with every view at most once, >= 2 views."""
+    offsets = np.concatenate([[0], np.cumsum(num_keypoints)])
+    parent = np.arange(int(offsets[-1]))
+
+    def find(x: int) -> int:
+        root = x
+        while parent[root] != root:
+            root = parent[root]
+        while parent[x] != root:
+            parent[x], x = root, parent[x]
+        return root
+
+    for (i, j), m in matches.items():
+        for a, b in m:
+            ra, rb = find(offsets[i] + a), find(offsets[j] + b)
+            if ra != rb:
+                parent[rb] = ra
+    groups: dict[int, list[int]] = {}
+    used = set()
+    for (i, j), m in matches.items():
+        used.update((offsets[i] + m[:, 0]).tolist())
+        used.update((offsets[j] + m[:, 1]).tolist())
+    for node in used:
+        groups.setdefault(find(node), []).append(node)
+    tracks = []
+    for nodes in groups.values():
+        view_of = np.searchsorted(offsets, nodes, side="right") - 1
+        if len(set(view_of.tolist())) != len(nodes) or len(nodes) < 2:
+            continue  # inconsistent track (one image twice) or trivial
+        kp = np.asarray(nodes) - offsets[view_of]
+        tracks.append(np.stack([view_of, kp], axis=1))
+    return tracks
+
+
+def triangulate_dlt(projections: np.ndarray, points2d: np.ndarray) -> np.ndarray:
+    """Linear (DLT) triangulation of one point from P [K,3,4] and pixel coords [K,2]."""
+    rows = []
+    for P, (u, v) in zip(projections, points2d, strict=True):
+        rows.append(u * P[2] - P[0])
+        rows.append(v * P[2] - P[1])
+    A = np.asarray(rows)
+    A /= np.linalg.norm(A, axis=1, keepdims=True) + 1e-12
+    _, _, vt = np.linalg.svd(A)
+    X = vt[-1]
+    return X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
+
+
+def fundamental_from_poses(ci: Camera, cj: Camera) -> np.ndarray:
+    """F with ``x_j^T F x_i = 0`` for the given cameras (pixel coordinates, our convention)."""
+    R = cj.world_to_cam[:3, :3] @ ci.world_to_cam[:3, :3].T
+    t = cj.world_to_cam[:3, 3] - R @ ci.world_to_cam[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    return np.linalg.inv(cj.K).T @ (tx @ R) @ np.linalg.inv(ci.K)
+
+
+def epipolar_distances(ci: Camera, cj: Camera, xi: np.ndarray, xj: np.ndarray) -> np.ndarray:
+    """Symmetric point-to-epipolar-line distance (px) of each match under the given poses."""
+    F = fundamental_from_poses(ci, cj)
+    hi = np.c_[xi, np.ones(len(xi))]
+    hj = np.c_[xj, np.ones(len(xj))]
+    lj = hi @ F.T  # epipolar lines in image j
+    li = hj @ F  # epipolar lines in image i
+    num = np.abs(np.sum(lj * hj, axis=1))
+    dj = num / (np.linalg.norm(lj[:, :2], axis=1) + 1e-12)
+    di = num / (np.linalg.norm(li[:, :2], axis=1) + 1e-12)
+    return 0.5 * (di + dj)
+
+
+def leave_one_out_errors(
+    cameras: list[Camera], keypoints: list[np.ndarray], tracks: list[np.ndarray], min_views: int = 3
+) -> list[list[float]]:
+    """Per view, the reprojection errors (px) of its observations against points triangulated from the
+    other views of each track (tracks with >= ``min_views`` views)."""
+    P = np.stack([c.K @ c.world_to_cam[:3] for c in cameras])
+    errors: list[list[float]] = [[] for _ in cameras]
+    for track in tracks:
+        if len(track) < min_views:
+            continue
+        vids, kps = track[:, 0], track[:, 1]
+        xy = np.stack([keypoints[v][k] for v, k in zip(vids, kps, strict=True)])
+        for t in range(len(track)):
+            others = np.arange(len(track)) != t
+            X = triangulate_dlt(P[vids[others]], xy[others])
+            if not np.all(np.isfinite(X)):
+                continue
+            cam = cameras[vids[t]]
+            uv, z = cam.project(X[None])
+            zo = np.array([cameras[v].project(X[None])[1][0] for v in vids[others]])
+            if z[0] <= 0 or np.any(zo <= 0):
+                errors[vids[t]].append(float("inf"))  # behind a camera: certainly inconsistent
+                continue
+            errors[vids[t]].append(float(np.linalg.norm(uv[0] - xy[t])))
+    return errors
+
+
+def _blame_inconsistent_pairs(
+    n: int, pair_err: dict, consistent: dict, min_consistent_pairs: int
+) -> dict[int, bool]:
+    """Images to flag for pairs that disagree with the given poses: {image: ambiguous}.
+
+    A disagreeing pair is ignored when both images agree with enough other views (repeated texture).
+    Otherwise it needs a culprit among its unsupported images: greedily the image(s) with the most
+    unexplained disagreeing pairs are flagged, until every such pair touches a flagged image. Two images
+    that only ever matched each other and disagree cannot be told apart: both are flagged (ambiguous)."""
+    from collections import Counter
+
+    support = Counter(i for p in consistent for i in p)
+    unsupported = {i for i in range(n) if support[i] < min_consistent_pairs}
+    bad = [p for p in pair_err if p not in consistent and (p[0] in unsupported or p[1] in unsupported)]
+    blamed: dict[int, bool] = {}
+    while True:
+        open_pairs = [p for p in bad if p[0] not in blamed and p[1] not in blamed]
+        if not open_pairs:
+            return blamed
+        counts = Counter(i for p in open_pairs for i in p if i in unsupported)
+        top = max(counts.values())
+        culprits = [i for i, c in counts.items() if c == top]
+        for i in culprits:
+            blamed[i] = any(j in culprits for p in open_pairs if i in p for j in p if j != i)
+
+
+def check_poses(
+    views,
+    threshold_px: float = 1.5,
+    reference_size: int = 256,
+    min_consistent_pairs: int = 1,
+    min_matches: int = 15,
+    max_features: int = 4096,
+    num_threads: int = 2,
+    workdir: Path | None = None,
+) -> PoseCheckReport:
+    """Check the poses of ``views`` (``go_core.scene.types.View``: image, optional mask, camera).
+
+    A verified image pair (>= ``min_matches`` inliers) is *consistent* with the given poses when the median
+    epipolar distance of its matches is at most the threshold. Repeated textures (a carton's identical
+    sides) can verify wrong pairs, so an image only needs ``min_consistent_pairs`` consistent partners; an
+    image with verified pairs of which fewer agree is flagged; one without any verified pair is
+    ``unverified`` (textureless objects, very wide baselines): the check cannot speak for it.
+    Tracks from consistent pairs then give the leave-one-out reprojection error, which also catches
+    errors epipolar geometry is blind to (e.g. a shift along the viewing axis). A wrong camera also
+    raises the errors of the views it shares tracks with, so images are blamed greedily: the worst one
+    above the threshold is flagged and its observations removed, then the errors are recomputed.
+    ``threshold_px`` is for a ``reference_size``-pixel
+    image and scales with the longest image side.
+    """
+    if len(views) < 3:
+        raise PoseCheckError(f"the pose check needs at least 3 views, got {len(views)}")
+    with tempfile.TemporaryDirectory(prefix="go-posecheck-", dir=workdir) as tmp:
+        keypoints, matches = extract_and_match(views, Path(tmp), max_features, num_threads)
+    if not matches:
+        raise PoseCheckError("no verified feature matches between any two views")
+    cameras = [v.camera for v in views]
+    thr = [threshold_px * max(c.width, c.height) / reference_size for c in cameras]
+    pair_err: dict[tuple[int, int], float] = {}
+    consistent: dict[tuple[int, int], np.ndarray] = {}
+    blamed_errors: dict[int, list[float]] = {}
+    for (i, j), m in matches.items():
+        if len(m) < min_matches:
+            continue
+        d = epipolar_distances(cameras[i], cameras[j], keypoints[i][m[:, 0]], keypoints[j][m[:, 1]])
+        pair_err[(i, j)] = float(np.median(d))
+        limit = max(thr[i], thr[j])
+        if pair_err[(i, j)] <= limit:
+            consistent[(i, j)] = m[d <= limit]  # single stray matches of a consistent pair are dropped
+    tracks = build_tracks([len(k) for k in keypoints], consistent)
+    blamed: list[int] = []
+    while True:
+        kept = [t[~np.isin(t[:, 0], blamed)] for t in tracks]
+        errors = leave_one_out_errors(cameras, keypoints, kept)
+        medians = [
+            np.median(e) if len(e) >= 10 and i not in blamed else -np.inf for i, e in enumerate(errors)
+        ]
+        worst = int(np.argmax(medians))
+        if not medians[worst] > thr[worst]:
+            break
+        blamed.append(worst)
+        blamed_errors[worst] = errors[worst]
+
+    epi_blamed = _blame_inconsistent_pairs(len(views), pair_err, consistent, min_consistent_pairs)
+    results, flagged, unverified = [], [], []
+    for idx, (view, errs) in enumerate(zip(views, errors, strict=True)):
+        mine = {p: e for p, e in pair_err.items() if idx in p}
+        n_ok = sum(p in consistent for p in mine)
+        e = np.asarray(blamed_errors.get(idx, errs), np.float64)
+        med = float(np.median(e)) if e.size else None
+        res = ImagePoseResult(
+            name=view.name,
+            verified_pairs=len(mine),
+            consistent_pairs=n_ok,
+            best_pair_epipolar_px=min(mine.values()) if mine else None,
+            observations=int(e.size),
+            median_px=med,
+            p90_px=float(np.percentile(e, 90)) if e.size else None,
+            flagged=False,
+        )
+        if idx in epi_blamed:
+            res.flagged, res.status = True, "flagged"
+            partners = [views[j].name for p in mine if p not in consistent for j in p if j != idx]
+            res.reason = (
+                f"agrees with {n_ok} of {len(mine)} matched views (best epipolar error "
+                f"{res.best_pair_epipolar_px:.1f} px > {thr[idx]:.2f} px)"
+            )
+            if epi_blamed[idx]:
+                res.reason += (
+                    f"; its only disagreeing partner {partners[0]} is flagged too: cannot tell which"
+                )
+        elif idx in blamed and med is not None:
+            res.flagged, res.status = True, "flagged"
+            res.reason = f"median reprojection error {med:.2f} px > {thr[idx]:.2f} px"
+        elif not mine:
+            res.status, res.reason = "unverified", "no image pair with enough verified matches"
+        elif n_ok < min_consistent_pairs:
+            res.status, res.reason = "unverified", "its verified pairs are all with flagged views"
+        if res.flagged:
+            flagged.append(view.name)
+        elif res.status == "unverified":
+            unverified.append(view.name)
+        results.append(res)
+    return PoseCheckReport(threshold_px, results, len(tracks), len(pair_err), flagged, unverified)
+
+
+def estimate_poses(
+    views, workdir: Path | None = None, num_threads: int = 2, max_features: int = 4096
+) -> dict:
+    """Incremental SfM with pycolmap for images without poses (``views``: objects with ``name``, ``image``
+    and optional ``mask``). One shared PINHOLE camera is estimated. Returns {name: Camera} for the images
+    in the largest reconstruction, in COLMAP's arbitrary world frame and scale."""
+    import pycolmap
+
+    with tempfile.TemporaryDirectory(prefix="go-sfm-", dir=workdir) as tmp:
+        work = Path(tmp)
+        extract_and_match(views, work, max_features, num_threads, camera_model="PINHOLE")
+        out = work / "sparse"
+        out.mkdir()
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads = num_threads
+        recs = pycolmap.incremental_mapping(work / "database.db", work / "images", out, options=options)
+    if not recs:
+        raise PoseCheckError("pycolmap SfM could not register any image pair")
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    cameras = {}
+    for image in rec.images.values():
+        if not image.has_pose:
+            continue
+        view = views[int(Path(image.name).stem)]
+        cam = image.camera
+        fx, fy, cx, cy = (float(x) for x in cam.params[:4])
+        w2c = np.eye(4)
+        w2c[:3] = image.cam_from_world().matrix()
+        cameras[view.name] = Camera.from_intrinsics(view.name, cam.width, cam.height, fx, fy, cx, cy, w2c)
+    return cameras

@@ -1,0 +1,100 @@
+"""Build (once per machine) and load the compiled CPU rasterizer; ``python -m go_core.render.build`` prebuilds.
+
+The extension is compiled from go_core/render/csrc/*.cpp with the system C++ compiler through
+``torch.utils.cpp_extension.load`` (ninja). The build directory is keyed by a hash of the sources, flags,
+torch/python versions and the CPU's instruction-set flags (the code is built with ``-march=native``), under
+``$TORCH_EXTENSIONS_DIR`` if set, else ``~/.cache/go-pipeline/torch_extensions``. Later calls only load it.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import sys
+from pathlib import Path
+
+CSRC = Path(__file__).resolve().parent / "csrc"
+SOURCES = ("rasterize.cpp",)
+CFLAGS = ("-O3", "-march=native", "-fopenmp", "-std=c++17", "-fno-math-errno")
+LDFLAGS = ("-fopenmp",)
+
+
+class ExtensionBuildError(RuntimeError):
+    """The compiled CPU rasterizer could not be built (no compiler, compile error)."""
+
+
+def _cpu_flags() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "Features")):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def build_key() -> str:
+    """Hash of everything that changes the binary."""
+    import torch
+
+    h = hashlib.sha256()
+    for name in SOURCES:
+        h.update(name.encode())
+        h.update((CSRC / name).read_bytes())
+    h.update(" ".join(CFLAGS + LDFLAGS).encode())
+    h.update(torch.__version__.encode())
+    h.update(sys.version.encode())
+    h.update(_cpu_flags().encode())
+    return h.hexdigest()[:16]
+
+
+def build_root() -> Path:
+    env = os.environ.get("TORCH_EXTENSIONS_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "go-pipeline" / "torch_extensions"
+
+
+@functools.cache
+def load_extension(verbose: bool = False):
+    """The compiled module (built on first use; cached on disk and in this process)."""
+    from torch.utils import cpp_extension
+
+    cxx = os.environ.get("CXX", "c++")
+    if shutil.which(cxx) is None:
+        raise ExtensionBuildError(
+            f"the CPU rasterizer needs a C++ compiler ({cxx!r} not found on PATH); install g++ "
+            "(e.g. `apt-get install g++`) or use backend='reference'"
+        )
+    name = f"go_raster_cpu_{build_key()}"
+    build_dir = build_root() / name
+    build_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        return cpp_extension.load(
+            name=name,
+            sources=[str(CSRC / s) for s in SOURCES],
+            extra_cflags=list(CFLAGS),
+            extra_ldflags=list(LDFLAGS),
+            build_directory=str(build_dir),
+            verbose=verbose,
+        )
+    except Exception as exc:  # compile/link errors come as RuntimeError/CalledProcessError
+        raise ExtensionBuildError(f"building the CPU rasterizer in {build_dir} failed: {exc}") from exc
+
+
+def main() -> int:
+    import time
+
+    t0 = time.perf_counter()
+    try:
+        load_extension(verbose="-v" in sys.argv[1:])
+    except ExtensionBuildError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"CPU rasterizer ready in {build_root()} ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,166 @@
+"""Leave-one-out runs (paper Sec. 3.4): how a model trained on too few views differs from a better one.
+
+For each training view k: phase 1 trains the coarse model on the other N−1 views from the hull of all N
+(with densification and floater removal, as the coarse stage); phase 2 continues with all N views, the set
+kept fixed (no densification, no pruning) so that every Gaussian keeps its identity. Renders of view k during
+phase 2 are degraded images whose clean counterpart is photo k; the per-Gaussian change of the parameters
+from the end of phase 1 to the end of phase 2 feeds the 3D-noise statistics.
+
+Every run persists into its own folder (phase checkpoints, ``before.npz``, renders, ``after.npz``, then
+``done.json`` last), so a killed step resumes mid-run and never repeats a finished run. Runs are independent
+and may execute in parallel processes.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from go_core.gaussians import Gaussians
+from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core.repair.data import on_white, render_rgb_alpha, to_uint8
+
+
+@dataclass(frozen=True)
+class LooSettings:
+    phase1_iterations: int = 6000  # N−1 views, with densification (authors' code: until densify_until_iter)
+    phase2_iterations: int = 4000  # all N views, fixed set (authors' code: up to the 10k coarse iterations)
+    renders: int = 10  # renders of the left-out view kept as degraded images (spread over phase 2)
+    checkpoint_every: int = 500
+    sh_degree: int = 2
+    backend: str = "auto"
+
+
+@dataclass
+class LooRun:
+    index: int
+    name: str
+    before: Gaussians
+    after: Gaussians
+    render_steps: list[int]
+    renders: list[np.ndarray]  # uint8 [H, W, 3] on white
+    info: dict
+
+
+def render_steps(settings: LooSettings) -> list[int]:
+    """Phase-2 steps whose (pre-update) state is rendered; the final state is added after the loop."""
+    n = max(settings.renders - 1, 0)
+    if n == 0 or settings.phase2_iterations <= 0:
+        return []
+    return sorted({int(s) for s in np.round(np.linspace(1, settings.phase2_iterations, n))})
+
+
+def _save_npy(path: Path, a: np.ndarray) -> None:
+    atomic_write(path, lambda tmp: np.save(open(tmp, "wb"), a))
+
+
+def run_one(
+    index: int, views: list, init: Gaussians, settings: LooSettings, seed: int, run_dir: Path, extent: float
+) -> LooRun:
+    """Run (or resume, or just load) the leave-one-out run for view ``index``."""
+    from go_core.floaters import FloaterConfig
+    from go_core.training import CheckpointSpec, CoarseConfig, NoDensify, optimize
+
+    run_dir = Path(run_dir)
+    done = run_dir / "done.json"
+    if done.is_file():
+        return load_run(run_dir)
+    left = views[index]
+    others = [v for i, v in enumerate(views) if i != index]
+    gen = torch.Generator().manual_seed(int(seed) * 1000 + index)
+    cfg1 = CoarseConfig(
+        iterations=settings.phase1_iterations, sh_degree=settings.sh_degree, backend=settings.backend
+    )
+    before_path = run_dir / "before.npz"
+    info: dict = {"index": index, "name": left.camera.name}
+    if before_path.is_file():
+        before = Gaussians.load(before_path)
+        gen.set_state(torch.load(run_dir / "rng_after_phase1.pt", weights_only=False))
+    else:
+        before, stats1 = optimize(
+            init,
+            others,
+            cfg1,
+            generator=gen,
+            extent=extent,
+            checkpoint=CheckpointSpec(run_dir / "phase1", every=settings.checkpoint_every),
+        )
+        from go_core.io.atomic import atomic_torch_save
+
+        atomic_torch_save(run_dir / "rng_after_phase1.pt", gen.get_state())
+        before.save(before_path)
+        atomic_write_json(
+            run_dir / "phase1.json", {"final_count": stats1.final_count, "loss_log": stats1.loss_log[-3:]}
+        )
+
+    steps = set(render_steps(settings))
+    rdir = run_dir / "renders"
+
+    def hook(step, g, out, view, i):
+        if step in steps and not (rdir / f"step_{step:07d}.npy").is_file():
+            rgb, _ = render_rgb_alpha(g.detach(), left.camera, 1.0, settings.backend, settings.sh_degree)
+            _save_npy(rdir / f"step_{step:07d}.npy", to_uint8(rgb))
+        return None
+
+    cfg2 = replace(cfg1, iterations=settings.phase2_iterations, floaters=FloaterConfig(enabled=False))
+    if settings.phase2_iterations > 0:
+        after, stats2 = optimize(
+            before,
+            views,
+            cfg2,
+            generator=gen,
+            extent=extent,
+            strategy=NoDensify(),
+            extra_loss=hook,
+            start_sh_degree=settings.sh_degree,
+            checkpoint=CheckpointSpec(run_dir / "phase2", every=settings.checkpoint_every),
+        )
+        info["phase2_final_loss"] = stats2.loss_log[-1]["loss"] if stats2.loss_log else None
+    else:
+        after = before
+    if len(after) != len(before):
+        raise AssertionError("phase 2 must keep the Gaussian set fixed")
+    final = settings.phase2_iterations + 1
+    rgb, _ = render_rgb_alpha(after, left.camera, 1.0, settings.backend, settings.sh_degree)
+    _save_npy(rdir / f"step_{final:07d}.npy", to_uint8(rgb))
+    after.save(run_dir / "after.npz")
+    clean = on_white(left.image, left.mask)
+    _save_npy(run_dir / "clean.npy", to_uint8(clean))
+    _save_npy(run_dir / "mask.npy", to_uint8(left.mask))
+    info.update({"count": len(after), "settings": asdict(settings)})
+    atomic_write_json(done, info)
+    return load_run(run_dir)
+
+
+def load_run(run_dir: Path) -> LooRun:
+    run_dir = Path(run_dir)
+    info = json.loads((run_dir / "done.json").read_text())
+    files = sorted((run_dir / "renders").glob("step_*.npy"))
+    return LooRun(
+        info["index"],
+        info["name"],
+        Gaussians.load(run_dir / "before.npz"),
+        Gaussians.load(run_dir / "after.npz"),
+        [int(f.stem.split("_")[1]) for f in files],
+        [np.load(f) for f in files],
+        info,
+    )
+
+
+def run_job(job: dict) -> str:
+    """Process-pool entry point (one leave-one-out run); returns the run folder."""
+    torch.set_num_threads(int(job.get("threads", 1)))
+    run_one(
+        job["index"],
+        job["views"],
+        job["init"],
+        LooSettings(**job["settings"]),
+        job["seed"],
+        Path(job["run_dir"]),
+        job["extent"],
+    )
+    return job["run_dir"]

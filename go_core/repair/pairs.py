@@ -1,0 +1,100 @@
+"""Degraded/clean training pairs for the repair model, drawn as in Algorithm 1 of the paper.
+
+``PairSource.draw`` returns one pair per tuning step: with probability p_manual a fresh *noise pair* (the
+coarse model with 3D noise, rendered at a random reference view, against that view's photo), else a cached
+*leave-one-out pair* (a render of the left-out view against its photo). p_manual starts at 1 and is
+multiplied by 0.995 every time a noise pair is used. All randomness comes from the generators passed in.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from go_core.gaussians import Gaussians
+from go_core.repair.data import from_uint8, on_white, render_rgb_alpha
+from go_core.repair.noise import NoiseStats, PairSchedule, add_noise
+
+
+@dataclass
+class Pair:
+    degraded: torch.Tensor  # [H, W, 3] in [0, 1], on white
+    clean: torch.Tensor  # [H, W, 3] in [0, 1], on white
+    mask: torch.Tensor  # [H, W] object mask of the clean view (for framing)
+    kind: str  # "noise" | "loo"
+    view: int
+
+
+def noise_pair(
+    coarse: Gaussians,
+    stats: NoiseStats,
+    view,
+    index: int,
+    generator: torch.Generator,
+    backend: str = "auto",
+    scale: float = 1.0,
+) -> Pair:
+    """The coarse model with 3D noise rendered at reference ``view`` (white background) vs. its photo."""
+    noisy = add_noise(coarse, stats, generator, scale)
+    rgb, _ = render_rgb_alpha(noisy, view.camera, 1.0, backend)
+    return Pair(rgb, on_white(view.image, view.mask), view.mask, "noise", index)
+
+
+class LooPairs:
+    """The leave-one-out pairs of a ``loo`` artifact (``loo.json`` + ``loo_pairs.npz``), held in memory."""
+
+    def __init__(self, loo_dir: str | Path) -> None:
+        loo_dir = Path(loo_dir)
+        meta = json.loads((loo_dir / "loo.json").read_text())
+        self.stats = NoiseStats.from_json(meta["stats"])
+        self.pairs = meta.get("pairs", [])
+        with np.load(loo_dir / "loo_pairs.npz") as data:
+            self.arrays = {k: data[k] for k in data.files}
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def get(self, i: int) -> Pair:
+        p = self.pairs[i]
+        return Pair(
+            from_uint8(self.arrays[p["degraded"]]),
+            from_uint8(self.arrays[p["clean"]]),
+            from_uint8(self.arrays[p["mask"]]),
+            "loo",
+            int(p["view"]),
+        )
+
+
+class PairSource:
+    """Algorithm 1: noise pairs on the fly with probability p_manual, else cached leave-one-out pairs."""
+
+    def __init__(
+        self,
+        coarse: Gaussians,
+        stats: NoiseStats,
+        views: list,
+        loo: LooPairs | None,
+        p0: float = 1.0,
+        decay: float = 0.995,
+        backend: str = "auto",
+        noise_scale: float = 1.0,
+    ) -> None:
+        self.coarse = coarse.detach()
+        self.stats = stats
+        self.views = views
+        self.loo = loo if loo is not None and len(loo) > 0 else None
+        self.schedule = PairSchedule(p0, decay, has_loo_pairs=self.loo is not None)
+        self.backend = backend
+        self.noise_scale = noise_scale
+
+    def draw(self, rng: np.random.Generator, generator: torch.Generator) -> Pair:
+        if self.schedule.draw(rng) == "noise":
+            k = int(rng.integers(len(self.views)))
+            return noise_pair(
+                self.coarse, self.stats, self.views[k], k, generator, self.backend, self.noise_scale
+            )
+        return self.loo.get(int(rng.integers(len(self.loo))))

@@ -1,0 +1,303 @@
+"""Gaussian repair (paper Sec. 3.5): distill the repair model into the Gaussians along distance-aware paths.
+
+Built on ``go_core.training.optimize`` (the reference views keep their coarse-stage loss each iteration) plus
+an ``extra_loss`` hook that, during the first ``repair_iterations`` (2800 of 4000), adds for one cached
+repaired view
+
+    decay(step) · w(t) · λ(π) · (L1 + L2 + LPIPS)(render(π), repaired(π))
+
+with decay linear 1.0 → 0.1, w(t) = 1 − ᾱ_t (DreamFusion), λ(π) = 2·min_i‖π − π_i‖ / d_max. Every
+``refresh_every`` (200) iterations the cache is rebuilt from the current Gaussians: ``views_per_arc`` (2)
+novel views from the middle 80% of each arc of the training-camera ellipse are rendered, put in a square
+frame, noised to a random t (SDEdit) and denoised by DDIM for ⌊50·t/T⌋ steps with the ControlNet on the
+render. Refreshed caches are saved in the checkpoint folder, so a resumed run reuses them exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from go_core.camera import Camera
+from go_core.diffusion.frame import Frame
+from go_core.diffusion.sampler import RepairDiffusion
+from go_core.gaussians import Gaussians
+from go_core.repair.arcs import RepairArcs
+from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha
+from go_core.repair.loss import LpipsFn, repair_image_loss
+from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_decay, neighbour_dmax
+
+
+@dataclass(frozen=True)
+class RepairSettings:
+    iterations: int = 4000
+    repair_iterations: int = 2800  # reference + repaired views; reference only afterwards
+    refresh_every: int = 200
+    views_per_arc: int = 2
+    keep: float = 0.8  # middle fraction of each arc that is sampled
+    t_range: tuple[float, float] = (0.1, 1.0)  # SDEdit strength t/T (authors' code: 0.1 .. 1.0)
+    num_inference_steps: int = 50
+    eta: float = 1.0
+    resolution: int = 512
+    lrep_start: float = 1.0
+    lrep_end: float = 0.1
+    l1: float = 1.0
+    l2: float = 1.0
+    lpips: float = 1.0
+    checkpoint_every: int = 200
+    backend: str = "auto"
+    means_lr: float = 1.6e-6  # constant position learning rate (authors' repair config)
+    densify: dict = field(
+        default_factory=lambda: {
+            "start_iter": 400,
+            "stop_iter": 3600,
+            "every": 100,
+            "reset_every": 500,
+            "min_opacity": 0.02,
+        }
+    )
+
+
+@dataclass
+class CachedView:
+    camera: Camera
+    image: torch.Tensor  # repaired [H, W, 3]
+    render: torch.Tensor  # the render it was made from [H, W, 3]
+    timestep: int
+    w: float
+    lam: float
+    arc: int
+
+
+def _cam_to_dict(c: Camera) -> dict:
+    return {
+        "name": c.name,
+        "width": c.width,
+        "height": c.height,
+        "K": c.K.tolist(),
+        "world_to_cam": c.world_to_cam.tolist(),
+    }
+
+
+def _cam_from_dict(d: dict) -> Camera:
+    return Camera(d["name"], d["width"], d["height"], np.array(d["K"]), np.array(d["world_to_cam"]))
+
+
+class RepairCache:
+    """The repaired views of one refresh period, made from the Gaussians at the period's first iteration."""
+
+    def __init__(
+        self,
+        arcs: RepairArcs,
+        diffusion: RepairDiffusion,
+        settings: RepairSettings,
+        seed: int,
+        directory: Path | None,
+        sh_degree: int,
+    ) -> None:
+        self.arcs = arcs
+        self.diffusion = diffusion
+        self.settings = settings
+        self.seed = int(seed)
+        self.directory = directory
+        self.sh_degree = sh_degree
+        self.refs = arcs.reference_positions()
+        self.d_max = neighbour_dmax(self.refs)
+        self.period = -1
+        self.views: list[CachedView] = []
+        self.made = 0
+
+    def _path(self, period: int) -> Path | None:
+        return None if self.directory is None else self.directory / f"refresh_{period:05d}.pt"
+
+    def ensure(self, period: int, g: Gaussians) -> None:
+        if period == self.period:
+            return
+        path = self._path(period)
+        if path is not None and path.is_file():
+            data = torch.load(path, map_location="cpu", weights_only=False)
+            self.views = [
+                CachedView(
+                    _cam_from_dict(v["camera"]),
+                    v["image"].float(),
+                    v["render"].float(),
+                    v["timestep"],
+                    v["w"],
+                    v["lam"],
+                    v["arc"],
+                )
+                for v in data
+            ]
+        else:
+            self.views = self.make(period, g)
+            if path is not None:
+                from go_core.io.atomic import atomic_torch_save
+
+                atomic_torch_save(
+                    path,
+                    [
+                        {
+                            "camera": _cam_to_dict(v.camera),
+                            "image": v.image.half(),
+                            "render": v.render.half(),
+                            "timestep": v.timestep,
+                            "w": v.w,
+                            "lam": v.lam,
+                            "arc": v.arc,
+                        }
+                        for v in self.views
+                    ],
+                )
+            self.made += 1
+        self.period = period
+
+    @torch.no_grad()
+    def make(self, period: int, g: Gaussians) -> list[CachedView]:
+        s = self.settings
+        rng = np.random.default_rng([self.seed, period])
+        gen = torch.Generator().manual_seed(self.seed * 100_003 + period)
+        out = []
+        for rv in self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}"):
+            rgb, alpha = render_rgb_alpha(g, rv.camera, 1.0, s.backend, self.sh_degree)
+            frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
+            base = hwc_to_bchw(rgb)
+            square = frame.to_square(base, s.resolution).to(self.diffusion.device)
+            t_frac = float(rng.uniform(*s.t_range))
+            res = self.diffusion.repair(square, t_frac, gen, s.num_inference_steps, s.eta)
+            full = frame.from_square(res.images.float().cpu(), base)
+            out.append(
+                CachedView(
+                    rv.camera,
+                    bchw_to_hwc(full),
+                    rgb,
+                    res.timestep,
+                    dreamfusion_weight(self.diffusion.alphas_cumprod, res.timestep),
+                    distance_weight(rv.camera.center, self.refs, self.d_max),
+                    rv.arc,
+                )
+            )
+        return out
+
+
+def repair_gaussians(
+    coarse: Gaussians,
+    views: list,
+    diffusion: RepairDiffusion,
+    settings: RepairSettings,
+    seed: int,
+    checkpoint_dir: Path | None = None,
+    lpips: LpipsFn | None = None,
+    on_progress: Callable[[int, dict], None] | None = None,
+) -> tuple[Gaussians, dict, dict]:
+    """Run the repair optimisation; returns (repaired Gaussians, summary, run facts).
+
+    The summary depends only on the inputs (identical after a resume); the run facts (resume point, refreshes
+    computed in this process, L_rep log) describe this particular process."""
+    from go_core.densify import DensifyConfig
+    from go_core.floaters import FloaterConfig
+    from go_core.optim import LearningRates
+    from go_core.training import CheckpointSpec, CoarseConfig, optimize
+
+    arcs = RepairArcs.from_cameras([v.camera for v in views], keep=settings.keep)
+    sh = coarse.sh_degree
+    cache = RepairCache(
+        arcs,
+        diffusion,
+        settings,
+        seed,
+        None if checkpoint_dir is None else Path(checkpoint_dir) / "refresh",
+        sh,
+    )
+    log: list[dict] = []
+
+    def extra(step: int, g: Gaussians, out, view, index: int):
+        if step > settings.repair_iterations:
+            return None
+        cache.ensure((step - 1) // max(settings.refresh_every, 1), g.detach())
+        pick = np.random.default_rng([seed, 7, step]).integers(len(cache.views))
+        cv = cache.views[int(pick)]
+        rgb, _ = render_differentiable(g, cv.camera, 1.0, settings.backend, sh)
+        img = repair_image_loss(
+            hwc_to_bchw(rgb), hwc_to_bchw(cv.image), lpips, settings.l1, settings.l2, settings.lpips
+        )
+        weight = lrep_decay(step - 1, settings.repair_iterations, settings.lrep_start, settings.lrep_end)
+        loss = weight * cv.w * cv.lam * img
+        if step % 100 == 0:
+            log.append(
+                {
+                    "step": step,
+                    "l_rep": round(float(loss.detach()), 6),
+                    "w": round(cv.w, 4),
+                    "lambda": round(cv.lam, 4),
+                    "t": cv.timestep,
+                }
+            )
+        return loss
+
+    config = CoarseConfig(
+        iterations=settings.iterations,
+        sh_degree=sh,
+        backend=settings.backend,
+        lr=LearningRates(
+            means_init=settings.means_lr, means_final=settings.means_lr, means_max_steps=settings.iterations
+        ),
+        densify=DensifyConfig(**settings.densify),
+        floaters=FloaterConfig(enabled=False),
+        lambda_depth=0.0,
+    )
+    gen = torch.Generator().manual_seed(int(seed) * 31 + 5)
+    ckpt = (
+        None
+        if checkpoint_dir is None
+        else CheckpointSpec(Path(checkpoint_dir) / "gs", every=settings.checkpoint_every)
+    )
+    result, stats = optimize(
+        coarse,
+        views,
+        config,
+        generator=gen,
+        extra_loss=extra,
+        on_progress=on_progress,
+        checkpoint=ckpt,
+        start_sh_degree=sh,
+    )
+    summary = {
+        "settings": asdict(settings),
+        "arcs": [
+            {
+                "start_deg": round(float(np.degrees(arcs.arc_bounds(i)[0])), 3),
+                "length_deg": round(float(np.degrees(arcs.arc_bounds(i)[1])), 3),
+            }
+            for i in range(len(arcs))
+        ],
+        "d_max": cache.d_max,
+        "refreshes": -(
+            -min(settings.repair_iterations, settings.iterations) // max(settings.refresh_every, 1)
+        ),
+        "last_views": [
+            {
+                "name": v.camera.name,
+                "arc": v.arc,
+                "t": v.timestep,
+                "w": round(v.w, 6),
+                "lambda": round(v.lam, 6),
+            }
+            for v in cache.views
+        ],
+        "train": {
+            "final_count": stats.final_count,
+            "densify": stats.densify,
+            "loss_log": stats.loss_log[-5:],
+        },
+    }
+    facts = {
+        "resumed_from": stats.resumed_from,
+        "refreshes_made": cache.made,
+        "l_rep_log": log[-20:],
+        "cache": cache,
+    }
+    return result, summary, facts

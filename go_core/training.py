@@ -1,0 +1,369 @@
+"""A reusable 3DGS optimisation loop (the coarse stage; the leave-one-out and repair stages build on it).
+
+    from go_core.training import CoarseConfig, TrainView, optimize
+    views = TrainView.from_scene_views(scene.train, masks=..., depths=...)
+    gaussians, stats = optimize(init_gaussians, views, CoarseConfig(iterations=10_000),
+                                generator=torch.Generator().manual_seed(seed),
+                                checkpoint=CheckpointSpec(ctx.checkpoint_dir, every=500))
+
+Per iteration (3DGS): pick one view (a random permutation of the views, refilled when empty, drawn from the
+explicit ``generator``), render it over a random background (the GT is composited over the same colour with
+its mask), loss = w·[(1-λs)·L1 + λs·D-SSIM] + λm·BCE(alpha, mask) + λd·depth loss (+ ``extra_loss``),
+backward, densification statistics, Adam step, then densify/prune/opacity-reset and floater elimination.
+
+Composability:
+* ``TrainView.weight`` scales a view's photometric loss; ``mask_weight`` / ``depth`` are per view, so extra
+  supervised images (e.g. repaired renders without a mask) can be mixed in with their own weights;
+* ``sample_view(step, generator) -> index`` replaces the default view order;
+* ``extra_loss(step, gaussians, out, view, index) -> Tensor | None`` adds any term;
+* ``strategy`` replaces the densification strategy (``None`` → ``DensifyStrategy(config.densify)``; pass
+  ``NoDensify()`` to keep the set fixed);
+* ``checkpoint`` = ``CheckpointSpec(dir, every)``: the loop resumes from the newest checkpoint in ``dir``
+  (params, Adam moments, strategy state, RNG state, loss log) and its final result is bit-identical to an
+  uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from go_core.camera import Camera
+from go_core.densify import DensifyConfig, DensifyStrategy
+from go_core.floaters import FloaterConfig, floater_mask
+from go_core.gaussians import Gaussians
+from go_core.losses import depth_loss, l1, mask_bce, ssim
+from go_core.optim import GaussianOptimizer, LearningRates
+
+CHECKPOINT_FORMAT = 1
+
+
+@dataclass
+class CoarseConfig:
+    """Coarse 3DGS settings; the defaults are the paper's / the authors' code's."""
+
+    iterations: int = 10_000
+    sh_degree: int = 2
+    sh_increase_every: int = 1000
+    lambda_dssim: float = 0.2
+    lambda_mask: float = 0.01  # BCE(alpha, mask) weight (authors' code: lambda_silhouette)
+    lambda_depth: float = 5e-4  # shift/scale-invariant depth loss weight (authors' code: mono_depth_weight)
+    depth_min_pixels: int = 10  # skip the depth term when fewer valid pixels
+    random_background: bool = True
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)  # used when random_background is False
+    lr: LearningRates = field(default_factory=LearningRates)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    floaters: FloaterConfig = field(default_factory=FloaterConfig)
+    backend: str = "auto"
+    log_every: int = 100
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> CoarseConfig:
+        d = dict(d)
+        lr = LearningRates(**d.pop("lr", {}))
+        dens = DensifyConfig(**d.pop("densify", {}))
+        flo = FloaterConfig(**d.pop("floaters", {}))
+        if "background" in d:
+            d["background"] = tuple(d["background"])
+        return CoarseConfig(lr=lr, densify=dens, floaters=flo, **d)
+
+    def fingerprint(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+@dataclass
+class TrainView:
+    """One supervised image. ``image`` float32 [H,W,3] (straight colour); ``mask`` float32 [H,W] or None
+    (no mask: the image is used as is, no BCE term, any background); ``depth`` an optional monocular
+    DISPARITY prior [H,W] (larger = closer; only its ranks up to shift/scale matter)."""
+
+    camera: Camera
+    image: torch.Tensor
+    mask: torch.Tensor | None = None
+    depth: torch.Tensor | None = None
+    weight: float = 1.0  # photometric loss weight
+    mask_weight: float | None = None  # BCE weight; None → config.lambda_mask
+
+    @staticmethod
+    def from_arrays(camera: Camera, image, mask=None, depth=None, **kw) -> TrainView:
+        def t(a):
+            return None if a is None else torch.as_tensor(np.asarray(a, np.float32))
+
+        return TrainView(camera, t(image), t(mask), t(depth), **kw)
+
+
+class NoDensify:
+    """A strategy that never changes the set (fine-tuning, repair)."""
+
+    counts: dict[str, int] = {}
+
+    def pre_backward(self, step, out) -> None:
+        pass
+
+    def post_backward(self, step, out, width, height, opt) -> None:
+        pass
+
+    def after_step(self, step, opt, generator) -> dict[str, int]:
+        return {}
+
+    def on_external_prune(self, keep) -> None:
+        pass
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        pass
+
+
+@dataclass
+class CheckpointSpec:
+    """Save every ``every`` iterations into ``directory`` (atomically, keeping the newest ``keep``)."""
+
+    directory: Path
+    every: int = 500
+    keep: int = 1
+
+
+@dataclass
+class TrainStats:
+    iterations: int = 0
+    resumed_from: int = 0
+    initial_count: int = 0
+    final_count: int = 0
+    max_count: int = 0
+    floaters_removed: int = 0
+    floater_passes: list[dict] = field(default_factory=list)
+    densify: dict[str, int] = field(default_factory=dict)
+    loss_log: list[dict] = field(default_factory=list)
+    depth_loss_used: bool = False
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def scene_extent(cameras: list[Camera]) -> float:
+    """3DGS 'cameras extent': 1.1 × the largest distance of a camera centre from their mean."""
+    centers = np.stack([c.center for c in cameras])
+    radius = float(np.linalg.norm(centers - centers.mean(0), axis=1).max())
+    return 1.1 * radius if radius > 0 else 1.0
+
+
+def _render(gaussians: Gaussians, cam: Camera, sh_degree: int, background: torch.Tensor, backend: str):
+    from go_core.render import render_gaussians
+
+    return render_gaussians(
+        gaussians,
+        cam.viewmat_tensor()[None],
+        cam.K_tensor()[None],
+        cam.width,
+        cam.height,
+        sh_degree=sh_degree,
+        background=background,
+        backend=backend,
+    )
+
+
+def view_loss(
+    out, view: TrainView, background: torch.Tensor, config: CoarseConfig, step: int
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """The coarse loss for one rendered view (see the module docstring). Returns (loss, its parts)."""
+    rgb = out.rgb[0]  # [H,W,3]
+    alpha = out.alpha[0, ..., 0]  # [H,W]
+    if view.mask is not None:
+        m = view.mask[..., None]
+        gt = view.image * m + background * (1.0 - m)
+    else:
+        gt = view.image
+    l1v = l1(rgb, gt)
+    ssv = ssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
+    photo = (1.0 - config.lambda_dssim) * l1v + config.lambda_dssim * (1.0 - ssv)
+    loss = view.weight * photo
+    parts = {"l1": float(l1v), "ssim": float(ssv)}
+    lam_m = config.lambda_mask if view.mask_weight is None else view.mask_weight
+    if view.mask is not None and lam_m > 0:
+        bce = mask_bce(alpha, view.mask)
+        loss = loss + lam_m * bce
+        parts["mask_bce"] = float(bce)
+    if view.depth is not None and config.lambda_depth > 0:
+        valid = (alpha.detach() > 0.5) & ((view.mask > 0.5) if view.mask is not None else True)
+        if int(valid.sum()) >= config.depth_min_pixels:
+            disp = 1.0 / out.depth[0, ..., 0].clamp_min(1e-6)
+            dl = depth_loss(disp, view.depth, valid)
+            loss = loss + config.lambda_depth * dl
+            parts["depth"] = float(dl)
+    return loss, parts
+
+
+def _rng_state(generator: torch.Generator) -> torch.Tensor:
+    return generator.get_state().clone()
+
+
+def _save_checkpoint(spec: CheckpointSpec, payload: dict, step: int) -> None:
+    from go_core.io.atomic import atomic_torch_save
+
+    spec.directory.mkdir(parents=True, exist_ok=True)
+    atomic_torch_save(spec.directory / f"ckpt_{step:07d}.pt", payload)
+    old = sorted(spec.directory.glob("ckpt_*.pt"))[: -max(spec.keep, 1)]
+    for p in old:
+        p.unlink(missing_ok=True)
+
+
+def _load_newest(spec: CheckpointSpec, fingerprint: str) -> dict | None:
+    if not spec.directory.is_dir():
+        return None
+    for path in sorted(spec.directory.glob("ckpt_*.pt"), reverse=True):
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception:  # a truncated file cannot exist (atomic writes), but be robust to foreign files
+            continue
+        if payload.get("format") == CHECKPOINT_FORMAT and payload.get("fingerprint") == fingerprint:
+            return payload
+    return None
+
+
+def _to_dict(obj: Any) -> Any:
+    return asdict(obj) if is_dataclass(obj) else obj
+
+
+def optimize(
+    gaussians: Gaussians,
+    views: list[TrainView],
+    config: CoarseConfig,
+    *,
+    generator: torch.Generator,
+    extent: float | None = None,
+    strategy=None,
+    sample_view: Callable[[int, torch.Generator], int] | None = None,
+    extra_loss: Callable[..., torch.Tensor | None] | None = None,
+    on_progress: Callable[[int, dict], None] | None = None,
+    checkpoint: CheckpointSpec | None = None,
+    start_sh_degree: int = 0,
+) -> tuple[Gaussians, TrainStats]:
+    """Optimise ``gaussians`` on ``views``; returns (final Gaussians with ``config.sh_degree`` SH, stats).
+
+    ``extent`` defaults to :func:`scene_extent` of the views' cameras (scales the position learning rate and
+    the densification thresholds). ``start_sh_degree`` is the active SH degree at step 0 (raised by one every
+    ``sh_increase_every`` steps up to ``config.sh_degree``). ``on_progress(step, info)`` is called every
+    iteration. Deterministic on CPU for a given generator state.
+    """
+    if not views:
+        raise ValueError("optimize needs at least one view")
+    extent = scene_extent([v.camera for v in views]) if extent is None else float(extent)
+    g0 = gaussians.detach().to(dtype=torch.float32).with_sh_degree(config.sh_degree)
+    opt = GaussianOptimizer(g0, config.lr, extent)
+    if strategy is None:
+        strategy = DensifyStrategy(config.densify, extent, len(opt))
+    stats = TrainStats(initial_count=len(g0), max_count=len(g0))
+    stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
+    order: list[int] = []
+    start = 0
+    fingerprint = hashlib.sha256(
+        (config.fingerprint() + f"|{len(views)}|{len(g0)}|{start_sh_degree}|{extent:.12g}").encode()
+    ).hexdigest()[:16]
+
+    if checkpoint is not None:
+        payload = _load_newest(checkpoint, fingerprint)
+        if payload is not None:
+            opt.load_state_dict(payload["optimizer"])
+            strategy.load_state_dict(payload["strategy"])
+            generator.set_state(payload["rng"])
+            order = list(payload["order"])
+            start = int(payload["step"])
+            saved = payload["stats"]
+            stats = TrainStats(**saved)
+            stats.resumed_from = start
+
+    fixed_bg = torch.tensor(config.background, dtype=torch.float32)
+    for step in range(start + 1, config.iterations + 1):
+        opt.set_means_lr(step)
+        active_sh = min(config.sh_degree, start_sh_degree + (step // max(config.sh_increase_every, 1)))
+        if sample_view is not None:
+            index = int(sample_view(step, generator))
+        else:
+            if not order:
+                order = torch.randperm(len(views), generator=generator).tolist()
+            index = order.pop()
+        view = views[index]
+        bg = torch.rand(3, generator=generator) if config.random_background else fixed_bg
+        g = opt.gaussians()
+        out = _render(g, view.camera, active_sh, bg, config.backend)
+        strategy.pre_backward(step, out)
+        loss, parts = view_loss(out, view, bg, config, step)
+        if extra_loss is not None:
+            extra = extra_loss(step, g, out, view, index)
+            if extra is not None:
+                loss = loss + extra
+                parts["extra"] = float(extra)
+        loss.backward()
+        strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
+        opt.step()
+        changed = strategy.after_step(step, opt, generator)
+        if config.floaters.due(step):
+            lam = config.floaters.lambda_at(step)
+            remove = floater_mask(
+                opt.params["means"].detach().numpy(), lam, max_fraction=config.floaters.max_remove_fraction
+            )
+            n_removed = int(remove.sum())
+            if n_removed:
+                keep = torch.from_numpy(~remove)
+                opt.keep(keep)
+                strategy.on_external_prune(keep)
+            stats.floaters_removed += n_removed
+            stats.floater_passes.append({"step": step, "lambda": round(lam, 6), "removed": n_removed,
+                                         "remaining": len(opt)})
+            changed = {**changed, "floaters": n_removed}
+        stats.max_count = max(stats.max_count, len(opt))
+        stats.iterations = step
+        if step % max(config.log_every, 1) == 0 or step == config.iterations:
+            stats.loss_log.append({"step": step, "loss": round(float(loss), 6), "n": len(opt),
+                                   **{k: round(v, 6) for k, v in parts.items()}})
+        if on_progress is not None:
+            on_progress(step, {"loss": float(loss), "n": len(opt), "view": index, **parts, **changed})
+        if checkpoint is not None and checkpoint.every > 0 and step % checkpoint.every == 0 \
+                and step < config.iterations:
+            stats.densify = dict(getattr(strategy, "counts", {}))
+            stats.final_count = len(opt)
+            _save_checkpoint(
+                checkpoint,
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "fingerprint": fingerprint,
+                    "step": step,
+                    "optimizer": opt.state_dict(),
+                    "strategy": strategy.state_dict(),
+                    "rng": _rng_state(generator),
+                    "order": list(order),
+                    "stats": stats.to_dict(),
+                },
+                step,
+            )
+    stats.final_count = len(opt)
+    stats.densify = dict(getattr(strategy, "counts", {}))
+    if not math.isfinite(float(opt.params["means"].detach().sum())):
+        raise FloatingPointError("coarse optimisation diverged (non-finite Gaussian positions)")
+    return opt.snapshot(), stats
+
+
+__all__ = [
+    "CheckpointSpec",
+    "CoarseConfig",
+    "NoDensify",
+    "TrainStats",
+    "TrainView",
+    "fields",
+    "optimize",
+    "scene_extent",
+    "view_loss",
+]

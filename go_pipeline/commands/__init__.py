@@ -1,0 +1,1 @@
+"""``go-pipeline`` subcommands: each module exposes ``add_parser(subparsers)`` and ``main(args) -> int``."""

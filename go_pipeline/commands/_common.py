@@ -1,0 +1,34 @@
+"""Arguments shared by several subcommands."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def add_pipeline_args(p: argparse.ArgumentParser, params: bool = True) -> None:
+    p.add_argument("--workdir", metavar="W", help="where artifacts go (default: SCENE/.go)")
+    p.add_argument("--pipeline", metavar="FILE", help="pipeline.yaml to use (default: the packaged one)")
+    if params:
+        p.add_argument("--profile", metavar="NAME", help="named param overrides from pipeline.yaml profiles")
+        p.add_argument(
+            "--set",
+            dest="sets",
+            action="append",
+            default=[],
+            metavar="STEP.PARAM=VALUE",
+            help="override a param (YAML value, type-checked); repeatable",
+        )
+        p.add_argument("--seed", type=int, default=0, help="random seed, part of every cache key (default 0)")
+
+
+def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
+    from go_pipeline.pipeline import parse_set_argument
+    from go_pipeline.resources import default_pipeline_path
+
+    path = args.pipeline or default_pipeline_path()
+    overrides: dict[str, Any] = {}
+    for text in args.sets:
+        dotted, value = parse_set_argument(text, path)
+        overrides[dotted] = value
+    return overrides

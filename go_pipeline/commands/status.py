@@ -1,0 +1,39 @@
+"""``go-pipeline status SCENE``: every step as fresh / stale / missing, and why (like ``dvc status``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from go_pipeline.commands._common import add_pipeline_args, overrides_from
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("status", help="show which steps are fresh, stale or missing, and why")
+    p.add_argument("scene", help="scene folder")
+    add_pipeline_args(p)
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from go_pipeline.runner import pipeline_status
+
+    rows = pipeline_status(
+        args.scene,
+        workdir=args.workdir,
+        profile=args.profile,
+        overrides=overrides_from(args),
+        seed=args.seed,
+        pipeline_path=args.pipeline,
+    )
+    if args.json:
+        print(json.dumps([row.__dict__ for row in rows], indent=2))
+        return 0
+    width = max(len(r.step) for r in rows)
+    for r in rows:
+        why = f"  ({r.reason})" if r.reason else ""
+        print(f"{r.step:<{width}}  {r.state:<7}{why}")
+    stale = sum(r.state != "fresh" for r in rows)
+    print(f"{len(rows) - stale} fresh, {stale} to run" if stale else "everything is up to date")
+    return 0

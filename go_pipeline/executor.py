@@ -1,0 +1,180 @@
+"""Run one step function: in a child process (default) or in this process (``in_process=True``: for
+debuggers; CPU time and peak memory are then those of the whole process)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import resource
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+from go_core.errors import GoError
+from go_pipeline.display import Display
+
+
+@dataclass
+class Execution:
+    ok: bool
+    wall_s: float
+    cpu_s: float
+    peak_mem_mb: float
+    device: str = "cpu"
+    records: dict[str, Any] = field(default_factory=dict)
+    error_kind: str = ""  # "go" (a GoError: one line for the user) | "crash" | "killed"
+    error_type: str = ""
+    error_message: str = ""
+    traceback: str = ""
+
+
+def execute(
+    spec: dict[str, Any], display: Display, in_process: bool = False, keep_fds: tuple[int, ...] = ()
+) -> Execution:
+    if in_process:
+        return _execute_here(spec, display)
+    return _execute_child(spec, display, keep_fds)
+
+
+def _execute_here(spec: dict[str, Any], display: Display) -> Execution:
+    from go_pipeline.worker import run_step_in_process
+
+    records: dict[str, Any] = {}
+
+    class _Direct:
+        def send(self, event: dict[str, Any]) -> None:
+            display.handle(event, records)
+
+    log = logging.getLogger(f"go_pipeline.step.{spec['step']}.{id(records)}")
+    log.setLevel(logging.DEBUG)
+    log.propagate = False
+    from go_pipeline.context import SinkLogHandler
+
+    handler = SinkLogHandler(_Direct())
+    log.addHandler(handler)
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        ctx = run_step_in_process(spec, _Direct(), log)
+        ok, kind, etype, msg, tb, device = True, "", "", "", "", ctx.resolved_device()
+    except GoError as e:
+        ok, kind, etype, msg, tb, device = (
+            False,
+            "go",
+            type(e).__name__,
+            str(e),
+            traceback.format_exc(),
+            "cpu",
+        )
+    except Exception as e:  # noqa: BLE001
+        ok, kind, etype, msg, tb, device = (
+            False,
+            "crash",
+            type(e).__name__,
+            str(e),
+            traceback.format_exc(),
+            "cpu",
+        )
+    finally:
+        log.removeHandler(handler)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return Execution(
+        ok, time.perf_counter() - t0, time.process_time() - c0, peak, device, records, kind, etype, msg, tb
+    )
+
+
+def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, ...]) -> Execution:
+    records: dict[str, Any] = {}
+    outcome: dict[str, Any] = {}
+    read_fd, write_fd = os.pipe()
+    env = dict(os.environ)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "go_pipeline.worker", str(write_fd)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        pass_fds=(write_fd, *keep_fds),
+        env=env,
+    )
+    os.close(write_fd)
+
+    def read_events() -> None:
+        with os.fdopen(read_fd, encoding="utf-8") as f:
+            for line in f:
+                try:
+                    event = json.loads(line)
+                except ValueError:
+                    continue
+                if event.get("type") in ("done", "error"):
+                    outcome.update(event)
+                else:
+                    display.handle(event, records)
+
+    def read_output() -> None:
+        assert proc.stdout is not None
+        for raw in proc.stdout:
+            text = raw.decode("utf-8", "replace").rstrip()
+            if text:
+                display.log.log(
+                    logging.INFO if display.debug else logging.DEBUG, f"[{spec['step']}] (output) {text}"
+                )
+
+    threads = [
+        threading.Thread(target=read_events, daemon=True),
+        threading.Thread(target=read_output, daemon=True),
+    ]
+    for t in threads:
+        t.start()
+    try:
+        assert proc.stdin is not None
+        proc.stdin.write(json.dumps(spec).encode("utf-8"))
+        proc.stdin.close()
+    except BrokenPipeError:
+        pass
+    try:
+        _, status, usage = os.wait4(proc.pid, 0)
+    except BaseException:
+        proc.kill()
+        os.wait4(proc.pid, 0)
+        proc.returncode = -9
+        raise
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    wall = time.perf_counter() - t0
+    for t in threads:
+        t.join(timeout=5)
+    cpu = usage.ru_utime + usage.ru_stime
+    peak = usage.ru_maxrss / 1024.0  # KiB on Linux
+    if proc.returncode == 0 and outcome.get("type") == "done":
+        return Execution(True, wall, cpu, peak, outcome.get("device", "cpu"), records)
+    if outcome.get("type") == "error":
+        return Execution(
+            False,
+            wall,
+            cpu,
+            peak,
+            "cpu",
+            records,
+            outcome["kind"],
+            outcome["exc_type"],
+            outcome["message"],
+            outcome.get("traceback", ""),
+        )
+    how = f"signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}"
+    hint = " (killed by the kernel: out of memory?)" if proc.returncode == -9 else ""
+    return Execution(
+        False,
+        wall,
+        cpu,
+        peak,
+        "cpu",
+        records,
+        "killed",
+        "ProcessDied",
+        f"the step process died with {how}{hint}",
+    )

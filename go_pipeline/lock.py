@@ -1,0 +1,64 @@
+"""One run per work dir: an exclusive ``fcntl.flock`` on ``<workdir>/lock``.
+
+The kernel drops the lock when the holder dies (even by kill -9), so a stale lock never blocks a rerun.
+The lock file records the holder's pid for the error message.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import time
+from pathlib import Path
+
+from go_core.errors import GoError
+
+
+class LockedError(GoError):
+    """Another go-pipeline run holds the work dir."""
+
+
+class WorkdirLock:
+    def __init__(self, workdir: Path, wait_s: float = 2.0) -> None:
+        self.path = Path(workdir) / "lock"
+        self.wait_s = wait_s  # short grace: the child of a just-killed run may still be exiting
+        self._fd: int | None = None
+
+    def acquire(self) -> WorkdirLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        deadline = time.monotonic() + self.wait_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "?"
+                    os.close(fd)
+                    raise LockedError(
+                        f"another go-pipeline run (pid {holder}) is using this work dir; wait for it to "
+                        f"finish",
+                        self.path,
+                    ) from None
+                time.sleep(0.05)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+        self._fd = fd
+        return self
+
+    @property
+    def fd(self) -> int | None:
+        return self._fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> WorkdirLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()

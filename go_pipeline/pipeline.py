@@ -1,0 +1,333 @@
+"""pipeline.yaml: load and check the DAG, read step VERSIONs without importing, resolve params.
+
+Everything here is cheap (yaml + ast), so ``status`` and a no-op ``run`` never import torch or a step.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from go_core.errors import PipelineError
+
+SCENE_INPUT = "@scene"  # the pseudo-input naming the scene folder itself (a step may be called `scene`)
+_STEP_KEYS = {"function", "inputs", "outputs", "params", "description"}
+_TOP_KEYS = {"version", "steps", "profiles"}
+RESERVED_OUTPUTS = {"manifest.json"}
+
+
+@dataclass(frozen=True)
+class StepSpec:
+    name: str
+    module: str
+    callable: str
+    inputs: dict[str, str]  # input name -> upstream step name, or SCENE_INPUT
+    outputs: tuple[str, ...]
+    params: dict[str, Any]  # defaults
+    description: str = ""
+
+    @property
+    def function(self) -> str:
+        return f"{self.module}:{self.callable}"
+
+    @property
+    def upstream(self) -> list[str]:
+        return sorted({s for s in self.inputs.values() if s != SCENE_INPUT})
+
+
+@dataclass
+class Pipeline:
+    path: Path
+    steps: dict[str, StepSpec]  # in topological order
+    profiles: dict[str, dict[str, dict[str, Any]]] = field(default_factory=dict)
+
+    @property
+    def order(self) -> list[str]:
+        return list(self.steps)
+
+    def ancestors(self, name: str) -> set[str]:
+        """Every step ``name`` depends on, transitively (not including itself)."""
+        seen: set[str] = set()
+        stack = list(self.steps[name].upstream)
+        while stack:
+            s = stack.pop()
+            if s not in seen:
+                seen.add(s)
+                stack.extend(self.steps[s].upstream)
+        return seen
+
+    def descendants(self, name: str) -> set[str]:
+        return {s for s in self.steps if name in self.ancestors(s)}
+
+    def require_step(self, name: str, what: str) -> StepSpec:
+        if name not in self.steps:
+            raise PipelineError(f"{what}: unknown step {name!r} (steps: {', '.join(self.steps)})", self.path)
+        return self.steps[name]
+
+    def resolve_params(
+        self, profile: str | None = None, overrides: dict[str, Any] | None = None
+    ) -> dict[str, dict[str, Any]]:
+        """Defaults, then the profile's overrides, then ``overrides``.
+
+        ``overrides``: {"step.param": value} or {step: {param: value}}."""
+        params = {name: dict(spec.params) for name, spec in self.steps.items()}
+        if profile is not None:
+            if profile not in self.profiles:
+                known = ", ".join(self.profiles) or "none"
+                raise PipelineError(f"unknown profile {profile!r} (profiles: {known})", self.path)
+            for step, values in self.profiles[profile].items():
+                for param, value in values.items():
+                    params[step][param] = value  # checked at load time
+        for dotted, value in flatten_overrides(overrides or {}).items():
+            what = f"--set {dotted}={_show(value)}"
+            step, param = self._split_dotted(dotted, what)
+            params[step][param] = check_param_type(self.steps[step].params[param], value, what, self.path)
+        return params
+
+    def _split_dotted(self, dotted: str, what: str) -> tuple[str, str]:
+        step, sep, param = dotted.partition(".")
+        if not sep or not step or not param:
+            raise PipelineError(f"{what}: expected STEP.PARAM=VALUE", self.path)
+        spec = self.require_step(step, what)
+        if param not in spec.params:
+            known = ", ".join(spec.params) or "none"
+            raise PipelineError(f"{what}: step {step!r} has no param {param!r} (params: {known})", self.path)
+        return step, param
+
+
+def flatten_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
+    """{"coarse": {"iterations": 5}} and {"coarse.iterations": 5} both become {"coarse.iterations": 5}."""
+    flat: dict[str, Any] = {}
+    for k, v in overrides.items():
+        if "." not in k and isinstance(v, dict):
+            for p, pv in v.items():
+                flat[f"{k}.{p}"] = pv
+        else:
+            flat[k] = v
+    return flat
+
+
+def parse_set_argument(text: str, path: Path | str = "pipeline.yaml") -> tuple[str, Any]:
+    """``step.param=value`` with the value parsed as YAML (so 3 is an int, 0.5 a float, [1, 2] a list)."""
+    import yaml
+
+    dotted, sep, raw = text.partition("=")
+    if not sep or not dotted.strip():
+        raise PipelineError(f"--set {text}: expected STEP.PARAM=VALUE", path)
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError as e:
+        first = str(e).splitlines()[0]
+        raise PipelineError(f"--set {text}: value is not valid YAML ({first})", path) from None
+    return dotted.strip(), value
+
+
+def _show(value: Any) -> str:
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def _type_name(value: Any) -> str:
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, int):
+        return "int"
+    if isinstance(value, float):
+        return "float"
+    if isinstance(value, str):
+        return "str"
+    if isinstance(value, list):
+        return "list"
+    if isinstance(value, dict):
+        return "mapping"
+    if value is None:
+        return "null"
+    return type(value).__name__
+
+
+def check_param_type(default: Any, value: Any, what: str, path: Path | str) -> Any:
+    """``value`` converted to the default's type, or a PipelineError. An int is accepted for a float
+    param (converted); a null default accepts anything; bool and int never mix."""
+    if default is None:
+        return value
+    want, got = _type_name(default), _type_name(value)
+    if want == "float" and got == "int":
+        return float(value)
+    if want != got:
+        raise PipelineError(f"{what}: expected {want} (default {_show(default)}), got {got}", path)
+    return value
+
+
+def read_step_version(module: str, path: Path | str, step: str) -> str:
+    """The module's ``VERSION = "..."``, read from its source with ast (no import)."""
+    source_file = _module_source(module, path, step)
+    tree = ast.parse(source_file.read_text(encoding="utf-8"), filename=str(source_file))
+    for node in tree.body:
+        targets = (
+            node.targets
+            if isinstance(node, ast.Assign)
+            else [node.target]
+            if isinstance(node, ast.AnnAssign)
+            else []
+        )
+        if any(isinstance(t, ast.Name) and t.id == "VERSION" for t in targets):
+            if isinstance(node.value, ast.Constant) and isinstance(node.value.value, (str, int)):
+                return str(node.value.value)
+            raise PipelineError(f"step {step!r}: VERSION in {source_file} must be a string literal", path)
+    raise PipelineError(f"step {step!r}: module {module} ({source_file}) defines no VERSION", path)
+
+
+def _module_source(module: str, path: Path | str, step: str) -> Path:
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError) as e:
+        raise PipelineError(f"step {step!r}: module {module!r} not found ({e})", path) from None
+    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+        raise PipelineError(f"step {step!r}: module {module!r} not found", path)
+    return Path(spec.origin)
+
+
+def load_pipeline(path: str | Path | None = None) -> Pipeline:
+    """Parse and check pipeline.yaml: structure, function specs, inputs naming known steps, no cycles,
+    outputs as plain relative file names, profiles naming known steps and params of the right type."""
+    import yaml
+
+    from go_pipeline.resources import default_pipeline_path
+
+    path = Path(path) if path is not None else default_pipeline_path()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise PipelineError(f"cannot read pipeline file ({e.strerror or e})", path) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise PipelineError(f"invalid YAML{where}: {problem}", path) from None
+    if not isinstance(data, dict):
+        raise PipelineError("expected a mapping with 'steps' at the top level", path)
+    unknown = set(data) - _TOP_KEYS
+    if unknown:
+        raise PipelineError(f"unknown top-level key(s): {', '.join(sorted(map(str, unknown)))}", path)
+    if data.get("version", 1) != 1:
+        raise PipelineError(f"unsupported pipeline version {data.get('version')!r} (expected 1)", path)
+    raw_steps = data.get("steps")
+    if not isinstance(raw_steps, dict) or not raw_steps:
+        raise PipelineError("'steps' must be a non-empty mapping of step name -> step", path)
+
+    specs = {str(name): _parse_step(str(name), body, path) for name, body in raw_steps.items()}
+    for spec in specs.values():
+        for input_name, upstream in spec.inputs.items():
+            if upstream != SCENE_INPUT and upstream not in specs:
+                raise PipelineError(
+                    f"step {spec.name!r}: input {input_name!r} names unknown step {upstream!r}", path
+                )
+            if upstream == spec.name:
+                raise PipelineError(f"step {spec.name!r}: input {input_name!r} is the step itself", path)
+    order = _toposort(specs, path)
+    pipeline = Pipeline(path=path, steps={n: specs[n] for n in order})
+    pipeline.profiles = _parse_profiles(data.get("profiles") or {}, pipeline)
+    return pipeline
+
+
+def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
+    if not name.isidentifier():
+        raise PipelineError(f"step name {name!r} must be an identifier (letters, digits, _)", path)
+    if not isinstance(body, dict):
+        raise PipelineError(f"step {name!r}: expected a mapping with function/inputs/outputs/params", path)
+    unknown = set(body) - _STEP_KEYS
+    if unknown:
+        raise PipelineError(f"step {name!r}: unknown key(s) {', '.join(sorted(map(str, unknown)))}", path)
+    function = body.get("function")
+    if not isinstance(function, str) or function.count(":") != 1:
+        raise PipelineError(f"step {name!r}: function must be 'module:callable', got {function!r}", path)
+    module, func = (s.strip() for s in function.split(":"))
+    if not module or not func.isidentifier() or not all(p.isidentifier() for p in module.split(".")):
+        raise PipelineError(f"step {name!r}: function must be 'module:callable', got {function!r}", path)
+    inputs = body.get("inputs") or {}
+    if not isinstance(inputs, dict) or not all(isinstance(v, str) for v in inputs.values()):
+        raise PipelineError(f"step {name!r}: inputs must map input name -> step name (or '@scene')", path)
+    outputs = body.get("outputs") or []
+    if not isinstance(outputs, list) or not all(isinstance(o, str) and o for o in outputs):
+        raise PipelineError(f"step {name!r}: outputs must be a list of file names", path)
+    for o in outputs:
+        if o.startswith("/") or ".." in Path(o).parts or o in RESERVED_OUTPUTS:
+            raise PipelineError(
+                f"step {name!r}: output {o!r} must be a relative file name "
+                f"(not absolute, no '..', not manifest.json)",
+                path,
+            )
+    params = body.get("params") or {}
+    if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
+        raise PipelineError(f"step {name!r}: params must be a mapping of name -> default", path)
+    return StepSpec(
+        name,
+        module,
+        func,
+        {str(k): v for k, v in inputs.items()},
+        tuple(outputs),
+        dict(params),
+        str(body.get("description") or ""),
+    )
+
+
+def _toposort(specs: dict[str, StepSpec], path: Path) -> list[str]:
+    """Depth-first topological order (stable: file order among independent steps); a cycle is an error
+    that names the steps on it."""
+    order: list[str] = []
+    state: dict[str, int] = {}  # 1 = on the stack, 2 = done
+
+    def visit(name: str, stack: list[str]) -> None:
+        if state.get(name) == 2:
+            return
+        if state.get(name) == 1:
+            cycle = stack[stack.index(name) :] + [name]
+            raise PipelineError(f"cycle in step inputs: {' -> '.join(cycle)}", path)
+        state[name] = 1
+        stack.append(name)
+        for up in specs[name].upstream:
+            visit(up, stack)
+        stack.pop()
+        state[name] = 2
+        order.append(name)
+
+    for name in specs:
+        visit(name, [])
+    return order
+
+
+def _parse_profiles(raw: Any, pipeline: Pipeline) -> dict[str, dict[str, dict[str, Any]]]:
+    path = pipeline.path
+    if not isinstance(raw, dict):
+        raise PipelineError("'profiles' must map profile name -> {step: {param: value}}", path)
+    profiles: dict[str, dict[str, dict[str, Any]]] = {}
+    for pname, body in raw.items():
+        body = body or {}
+        if not isinstance(body, dict):
+            raise PipelineError(f"profile {pname!r}: expected a mapping step -> {{param: value}}", path)
+        resolved: dict[str, dict[str, Any]] = {}
+        for step, values in flatten_and_group(body).items():
+            spec = pipeline.require_step(step, f"profile {pname!r}")
+            for param, value in values.items():
+                if param not in spec.params:
+                    known = ", ".join(spec.params) or "none"
+                    raise PipelineError(
+                        f"profile {pname!r}: step {step!r} has no param {param!r} (params: {known})", path
+                    )
+                resolved.setdefault(step, {})[param] = check_param_type(
+                    spec.params[param], value, f"profile {pname!r}: {step}.{param}", path
+                )
+        profiles[str(pname)] = resolved
+    return profiles
+
+
+def flatten_and_group(body: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    grouped: dict[str, dict[str, Any]] = {}
+    for dotted, value in flatten_overrides(body).items():
+        step, _, param = str(dotted).partition(".")
+        grouped.setdefault(step, {})[param] = value
+    return grouped

@@ -1,0 +1,36 @@
+"""Where the packaged files live: pipeline.yaml, data_schema/ and the example scene.
+
+A wheel carries copies in ``go_pipeline/_resources/`` (see setup.py); an editable install reads them from
+the checkout (the repository top level, one folder above this package).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+_PKG = Path(__file__).resolve().parent
+_RESOURCES = _PKG / "_resources"
+_CHECKOUT = _PKG.parent
+
+
+def _find(name: str) -> Path:
+    for base in (_CHECKOUT, _RESOURCES):
+        candidate = base / name
+        if candidate.exists():
+            return candidate
+    raise FileNotFoundError(f"packaged resource {name} not found in {_CHECKOUT} or {_RESOURCES}")
+
+
+def default_pipeline_path() -> Path:
+    """The pipeline.yaml shipped with the package."""
+    return _find("pipeline.yaml")
+
+
+def schema_path(name: str) -> Path:
+    """A JSON Schema of ``data_schema/``, e.g. ``schema_path("step_manifest")``."""
+    return _find(f"data_schema/{name}.schema.json")
+
+
+def example_scene_path() -> Path:
+    """The built-in example scene (a copy of the CC BY 4.0 sample ``basket``; see its ATTRIBUTION.txt)."""
+    return _PKG / "examples" / "basket"

@@ -1,0 +1,505 @@
+"""The DAG runner: run the stale steps of pipeline.yaml for one scene, in topological order, caching every
+artifact under its content-derived key; and ``pipeline_status`` (fresh / stale / missing and why).
+
+See docs/runner.md for the key, the work dir layout and the manifest.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import os
+import shutil
+import sys
+import time
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from go_core.errors import GoError, PipelineError, SceneError
+from go_pipeline import store
+from go_pipeline.hashing import FileHashCache, cache_key, combine_file_hashes, folder_hashes
+from go_pipeline.pipeline import SCENE_INPUT, Pipeline, StepSpec, load_pipeline, read_step_version
+
+MAX_LOGS = 50
+
+
+class StepFailed(GoError):
+    """A step raised or its process died; the message names the step and the run log."""
+
+    exit_code = 1
+
+
+@dataclass
+class StepResult:
+    name: str
+    status: str  # "ran" | "cached" | "skipped" (ran or cached, and the step recorded status "skipped")
+    key: str
+    artifact_dir: Path
+    cached: bool
+    wall_s: float  # this run's time for the step (0 when cached); the manifest keeps the original timing
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class RunSummary:
+    scene_dir: Path
+    workdir: Path
+    profile: str | None
+    seed: int
+    steps: list[StepResult]
+    log_path: Path
+    started: str
+    finished: str
+    wall_s: float
+
+    def step(self, name: str) -> StepResult:
+        for s in self.steps:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+    @property
+    def ran(self) -> list[str]:
+        return [s.name for s in self.steps if not s.cached]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["scene_dir"], d["workdir"], d["log_path"] = (
+            str(self.scene_dir),
+            str(self.workdir),
+            str(self.log_path),
+        )
+        for s in d["steps"]:
+            s["artifact_dir"] = str(s["artifact_dir"])
+        return d
+
+
+@dataclass
+class StatusRow:
+    step: str
+    state: str  # "fresh" | "stale" | "missing"
+    reason: str
+    key: str | None
+
+
+# ---------------------------------------------------------------------------------------------- planning
+@dataclass
+class _Plan:
+    pipeline: Pipeline
+    params: dict[str, dict[str, Any]]
+    versions: dict[str, str]
+    scene_dir: Path
+    workdir: Path
+    seed: int
+
+
+def _plan(
+    scene_dir: str | Path,
+    workdir: str | Path | None,
+    profile: str | None,
+    overrides: dict[str, Any] | None,
+    seed: int,
+    pipeline_path: str | Path | None,
+    steps: Iterable[str] | None = None,
+) -> _Plan:
+    scene = Path(scene_dir).resolve()
+    if not scene.is_dir():
+        raise SceneError("scene folder not found" if not scene.exists() else "not a folder", scene)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise PipelineError(f"seed must be an integer, got {seed!r}", "--seed")
+    pipeline = load_pipeline(pipeline_path)
+    params = pipeline.resolve_params(profile, overrides)
+    names = list(pipeline.steps) if steps is None else list(steps)
+    versions = {n: read_step_version(pipeline.steps[n].module, pipeline.path, n) for n in names}
+    return _Plan(pipeline, params, versions, scene, store.workdir_for(scene, workdir), int(seed))
+
+
+def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
+    cache_file = plan.workdir / "cache" / "file_hashes.json"
+    cache = FileHashCache(cache_file)
+    hashes = folder_hashes(
+        plan.scene_dir, exclude=[plan.scene_dir / store.WORKDIR_NAME, plan.workdir], cache=cache
+    )
+    if not hashes:
+        raise SceneError("scene folder is empty", plan.scene_dir)
+    if cache_writable:
+        cache.save()
+    return combine_file_hashes(hashes)
+
+
+def _input_hashes(
+    spec: StepSpec, scene_hash: str | None, done: dict[str, dict[str, Any]], scene_dir: Path
+) -> dict[str, dict[str, Any]] | None:
+    """name -> {step, key, content_hash} for every input, or None when an upstream has no artifact."""
+    result: dict[str, dict[str, Any]] = {}
+    for name, up in spec.inputs.items():
+        if up == SCENE_INPUT:
+            assert scene_hash is not None
+            result[name] = {"step": None, "key": None, "content_hash": scene_hash, "path": str(scene_dir)}
+        elif up in done:
+            result[name] = {"step": up, "key": done[up]["key"], "content_hash": done[up]["content_hash"]}
+        else:
+            return None
+    return result
+
+
+def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
+    return cache_key(
+        name,
+        plan.versions[name],
+        plan.params[name],
+        plan.seed,
+        {k: v["content_hash"] for k, v in inputs.items()},
+    )
+
+
+# ---------------------------------------------------------------------------------------------- running
+def run_pipeline(
+    scene_dir: str | Path,
+    *,
+    workdir: str | Path | None = None,
+    profile: str | None = None,
+    overrides: dict[str, Any] | None = None,
+    until: str | None = None,
+    force: Iterable[str] = (),
+    seed: int = 0,
+    pipeline_path: str | Path | None = None,
+    device: str = "auto",
+    in_process: bool = False,
+    quiet: bool = False,
+    debug: bool = False,
+) -> RunSummary:
+    """Run every stale step (up to ``until``) for one scene and return what happened to each step.
+
+    ``overrides``: {"step.param": value} or {step: {param: value}}, applied after ``profile``.
+    ``force``: steps to rerun even when cached (their descendants rerun only if the output changes).
+    Raises GoError subclasses (PipelineError, SceneError, LockedError, StepFailed, a step's own GoError).
+    """
+    pipeline = load_pipeline(pipeline_path)
+    if until is not None:
+        pipeline.require_step(until, "--until")
+        wanted = pipeline.ancestors(until) | {until}
+        selected = [n for n in pipeline.order if n in wanted]
+    else:
+        selected = pipeline.order
+    force = set(force)
+    for f in sorted(force):
+        pipeline.require_step(f, "--force")
+    if device not in ("auto", "cpu", "cuda"):
+        raise PipelineError(f"--device must be auto, cpu or cuda, got {device!r}", pipeline.path)
+    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline.path, selected)
+    plan.pipeline = pipeline
+
+    from go_pipeline.display import Display
+    from go_pipeline.lock import WorkdirLock
+
+    started, t0 = _utc_now(), time.perf_counter()
+    plan.workdir.mkdir(parents=True, exist_ok=True)
+    with WorkdirLock(plan.workdir) as lock:
+        log_path = _new_log_path(plan.workdir)
+        display = Display(log_path, quiet=quiet, debug=debug)
+        try:
+            display.log.debug(
+                f"go-pipeline run {plan.scene_dir} workdir={plan.workdir} profile={profile} "
+                f"seed={seed} until={until} force={sorted(force)} pipeline={pipeline.path} "
+                f"python={sys.executable}"
+            )
+            store.sweep_leftovers(plan.workdir)
+            needs_scene = any(up == SCENE_INPUT for n in selected for up in pipeline.steps[n].inputs.values())
+            scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
+            done: dict[str, dict[str, Any]] = {}
+            results: list[StepResult] = []
+            for name in selected:
+                results.append(
+                    _run_one(
+                        plan, name, name in force, scene_hash, done, display, lock.fd, device, in_process
+                    )
+                )
+            summary = RunSummary(
+                plan.scene_dir,
+                plan.workdir,
+                profile,
+                plan.seed,
+                results,
+                log_path,
+                started,
+                _utc_now(),
+                time.perf_counter() - t0,
+            )
+            _write_summary(plan.workdir, summary)
+            ran = len(summary.ran)
+            display.log.info(
+                f"done: {ran} step(s) ran, {len(results) - ran} cached "
+                f"({summary.wall_s:.1f} s); artifacts in {plan.workdir / 'artifacts'}"
+            )
+            return summary
+        finally:
+            display.close()
+
+
+def _run_one(
+    plan: _Plan,
+    name: str,
+    forced: bool,
+    scene_hash: str | None,
+    done: dict[str, dict[str, Any]],
+    display,
+    lock_fd: int | None,
+    device: str,
+    in_process: bool,
+) -> StepResult:
+    from go_pipeline.manifest import build_manifest, check_manifest
+
+    spec = plan.pipeline.steps[name]
+    inputs = _input_hashes(spec, scene_hash, done, plan.scene_dir)
+    assert inputs is not None  # topological order: every upstream is in `done`
+    key = _key_for(plan, name, inputs)
+    final = store.artifact_path(plan.workdir, name, key)
+    display.current_step = name
+    if not forced and store.is_complete(final):
+        manifest = store.load_manifest(final)
+        done[name] = manifest
+        store.write_ref(plan.workdir, name, key)
+        record = manifest.get("record") or {}
+        status = "skipped" if record.get("status") == "skipped" else "cached"
+        display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
+        return StepResult(name, status, key, final, True, 0.0, record)
+
+    display.log.info(f"  {name:<12} running  {key[:12]} ...")
+    tmp = store.artifacts_root(plan.workdir, name) / f"{store.TMP_PREFIX}{key[:16]}-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    ckpt = store.checkpoint_path(plan.workdir, name, key)
+    ckpt.mkdir(parents=True, exist_ok=True)
+    step_inputs = {
+        n: (v["path"] if v["step"] is None else str(store.artifact_path(plan.workdir, v["step"], v["key"])))
+        for n, v in inputs.items()
+    }
+    job = {
+        "step": name,
+        "module": spec.module,
+        "callable": spec.callable,
+        "inputs": step_inputs,
+        "params": plan.params[name],
+        "out_dir": str(tmp),
+        "checkpoint_dir": str(ckpt),
+        "seed": plan.seed,
+        "device": device,
+        "parent_pid": os.getpid(),
+        "pipeline_path": str(plan.pipeline.path),
+        "sys_path": [p for p in sys.path if p],
+    }
+    started = _utc_now()
+    from go_pipeline.executor import execute
+
+    try:
+        result = execute(
+            job, display, in_process=in_process, keep_fds=(lock_fd,) if lock_fd is not None else ()
+        )
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    finally:
+        display.end_step()
+    try:
+        if not result.ok:
+            level = logging.INFO if display.debug else logging.DEBUG  # --debug: the step's traceback
+            display.log.log(
+                level, f"[{name}] failed: {result.error_type}: {result.error_message}\n{result.traceback}"
+            )
+            if result.error_kind == "go":
+                raise _rebuild_go_error(result.error_type, result.error_message)
+            tb_hint = "" if not result.traceback else f"; traceback in {display_log_path(display)}"
+            raise StepFailed(f"step {name!r} failed: {result.error_type}: {result.error_message}{tb_hint}")
+        missing = [o for o in spec.outputs if not (tmp / o).is_file()]
+        if missing:
+            source = _module_file(spec)
+            raise StepFailed(
+                f"step {name!r} did not write its declared output(s): {', '.join(missing)}", source
+            )
+        outputs = folder_hashes(tmp)
+        outputs.pop(store.MANIFEST, None)
+        content_hash = combine_file_hashes(outputs)
+        manifest = build_manifest(
+            step=name,
+            key=key,
+            version=plan.versions[name],
+            seed=plan.seed,
+            params=plan.params[name],
+            inputs=inputs,
+            outputs=outputs,
+            content_hash=content_hash,
+            wall_s=result.wall_s,
+            cpu_s=result.cpu_s,
+            peak_mem_mb=result.peak_mem_mb,
+            device=result.device,
+            started=started,
+            finished=_utc_now(),
+            record=result.records,
+            function=spec.function,
+        )
+        check_manifest(manifest, tmp / store.MANIFEST)
+        from go_core.io.atomic import atomic_write_json
+
+        atomic_write_json(tmp / store.MANIFEST, manifest)
+        _fsync_dir(tmp)
+        if final.exists():  # --force over a complete artifact
+            store.remove_tree(final)
+        os.rename(tmp, final)
+        _fsync_dir(final.parent)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    store.write_ref(plan.workdir, name, key)
+    shutil.rmtree(ckpt, ignore_errors=True)
+    _remove_if_empty(ckpt.parent)
+    done[name] = manifest
+    status = "skipped" if result.records.get("status") == "skipped" else "ran"
+    extra = (
+        f" ({result.records.get('reason')})" if status == "skipped" and result.records.get("reason") else ""
+    )
+    display.log.info(
+        f"  {name:<12} {status:<8} {key[:12]} {result.wall_s:7.1f} s  cpu {result.cpu_s:6.1f} s  "
+        f"peak {result.peak_mem_mb:7.0f} MiB{extra}"
+    )
+    return StepResult(name, status, key, final, False, result.wall_s, result.records)
+
+
+def _rebuild_go_error(type_name: str, message: str) -> GoError:
+    """The step's GoError (same class when it is one of go_core.errors) carrying its one-line message."""
+    import go_core.errors as errors
+
+    cls = getattr(errors, type_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, GoError)):
+        cls = GoError
+    try:
+        return cls(message)
+    except TypeError:
+        return GoError(message)
+
+
+def display_log_path(display) -> str:
+    handler = getattr(display, "_file_handler", None)
+    return getattr(handler, "baseFilename", "the run log")
+
+
+def _module_file(spec: StepSpec) -> str:
+    import importlib.util
+
+    try:
+        found = importlib.util.find_spec(spec.module)
+        return found.origin if found and found.origin else spec.module
+    except (ImportError, ValueError):
+        return spec.module
+
+
+def _remove_if_empty(path: Path) -> None:
+    try:
+        path.rmdir()
+    except OSError:
+        pass
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _utc_now() -> str:
+    from go_pipeline.manifest import utc_now
+
+    return utc_now()
+
+
+def _new_log_path(workdir: Path) -> Path:
+    logs = workdir / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    old = sorted(logs.glob("run-*.log"))
+    for p in old[: max(0, len(old) - MAX_LOGS + 1)]:
+        p.unlink(missing_ok=True)
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
+    return logs / f"run-{stamp}.log"
+
+
+def _write_summary(workdir: Path, summary: RunSummary) -> None:
+    from go_core.io.atomic import atomic_write_json
+
+    atomic_write_json(workdir / "runs" / "last.json", summary.to_dict())
+
+
+# ---------------------------------------------------------------------------------------------- status
+def pipeline_status(
+    scene_dir: str | Path,
+    *,
+    workdir: str | Path | None = None,
+    profile: str | None = None,
+    overrides: dict[str, Any] | None = None,
+    seed: int = 0,
+    pipeline_path: str | Path | None = None,
+) -> list[StatusRow]:
+    """Every step as fresh (its artifact for the current key exists), stale (an older artifact exists;
+    the reason says what changed) or missing (never run); reads only manifests and file stats."""
+    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline_path)
+    needs_scene = any(up == SCENE_INPUT for s in plan.pipeline.steps.values() for up in s.inputs.values())
+    scene_hash = _scene_hash(plan, cache_writable=plan.workdir.is_dir()) if needs_scene else None
+    done: dict[str, dict[str, Any]] = {}
+    rows: list[StatusRow] = []
+    states: dict[str, str] = {}
+    for name, spec in plan.pipeline.steps.items():
+        previous_dir = store.artifact_dir(plan.workdir, name)
+        previous = store.load_manifest(previous_dir) if previous_dir is not None else None
+        inputs = _input_hashes(spec, scene_hash, done, plan.scene_dir)
+        if inputs is not None:
+            key = _key_for(plan, name, inputs)
+            if store.is_complete(store.artifact_path(plan.workdir, name, key)):
+                done[name] = store.load_manifest(store.artifact_path(plan.workdir, name, key))
+                rows.append(StatusRow(name, "fresh", "", key))
+                states[name] = "fresh"
+                continue
+        else:
+            key = None
+        if previous is None:
+            state, reasons = "missing", ["never run"]
+        else:
+            state, reasons = "stale", _what_changed(plan, name, previous, inputs)
+        blocked = [u for u in spec.upstream if states.get(u) != "fresh"]
+        if blocked:
+            reasons.append("upstream " + ", ".join(f"{u} is {states[u]}" for u in blocked))
+        rows.append(StatusRow(name, state, "; ".join(reasons) or "key changed", key))
+        states[name] = state
+    return rows
+
+
+def _what_changed(
+    plan: _Plan, name: str, previous: dict[str, Any], inputs: dict[str, dict[str, Any]] | None
+) -> list[str]:
+    reasons: list[str] = []
+    if str(previous.get("version")) != plan.versions[name]:
+        reasons.append(f"version changed {previous.get('version')} -> {plan.versions[name]}")
+    old_params, new_params = previous.get("params") or {}, plan.params[name]
+    for p in sorted(set(old_params) | set(new_params)):
+        if old_params.get(p, "<unset>") != new_params.get(p, "<unset>"):
+            reasons.append(
+                f"param {p} changed {old_params.get(p, '<unset>')!r} -> {new_params.get(p, '<unset>')!r}"
+            )
+    if previous.get("seed") != plan.seed:
+        reasons.append(f"seed changed {previous.get('seed')} -> {plan.seed}")
+    if inputs is not None:
+        old_inputs = previous.get("inputs") or {}
+        for n in sorted(set(old_inputs) | set(inputs)):
+            old, new = old_inputs.get(n), inputs.get(n)
+            if old is None or new is None or old.get("content_hash") != new.get("content_hash"):
+                what = "scene folder" if new is not None and new.get("step") is None else "input"
+                reasons.append(f"{what} {n!r} changed")
+    return reasons

@@ -1,0 +1,115 @@
+"""Child-process entry point that runs one step: ``python -m go_pipeline.worker EVENT_FD < spec.json``.
+
+Running each step in its own process gives an honest per-step peak memory and CPU time (the parent reads
+them with ``os.wait4``) and returns the step's memory to the OS afterwards. The child dies with its parent
+(PR_SET_PDEATHSIG), so a killed CLI never leaves a step writing into the work dir.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_GO_ERROR = 3
+EXIT_CRASH = 4
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Ask the kernel to SIGKILL us when the parent dies; a watchdog thread covers the race before."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent_pid:
+        os._exit(EXIT_CRASH)
+
+    def watch() -> None:
+        while True:
+            time.sleep(0.5)
+            if os.getppid() != parent_pid:
+                os._exit(EXIT_CRASH)
+
+    threading.Thread(target=watch, daemon=True, name="parent-watchdog").start()
+
+
+def run_step_in_process(spec: dict, sink, log: logging.Logger):
+    """Import the step function and call it with a fresh context; returns the context."""
+    from go_pipeline.context import RunnerStepContext
+
+    ctx = RunnerStepContext(
+        spec["step"],
+        Path(spec["out_dir"]),
+        Path(spec["checkpoint_dir"]),
+        spec["seed"],
+        spec["device"],
+        sink,
+        log,
+    )
+    module = importlib.import_module(spec["module"])
+    fn = getattr(module, spec["callable"], None)
+    if not callable(fn):
+        from go_core.errors import PipelineError
+
+        raise PipelineError(
+            f"step {spec['step']!r}: {spec['module']} has no callable {spec['callable']!r}",
+            spec.get("pipeline_path"),
+        )
+    inputs = {name: Path(p) for name, p in spec["inputs"].items()}
+    fn(ctx, inputs, dict(spec["params"]))
+    return ctx
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    event_fd = int(argv[0])
+    spec = json.loads(sys.stdin.read())
+    _die_with_parent(int(spec["parent_pid"]))
+    wanted = [p for p in spec.get("sys_path", []) if p]
+    sys.path[:] = wanted + [p for p in sys.path if p not in wanted]  # the parent's import path
+
+    from go_pipeline.context import PipeSink, SinkLogHandler
+
+    sink = PipeSink(event_fd)
+    log = logging.getLogger(f"go_pipeline.step.{spec['step']}")
+    log.setLevel(logging.DEBUG)
+    log.propagate = False
+    log.addHandler(SinkLogHandler(sink))
+    try:
+        ctx = run_step_in_process(spec, sink, log)
+        sink.send({"type": "done", "device": ctx.resolved_device()})
+        code = EXIT_OK
+    except KeyboardInterrupt:
+        code = 130
+    except BaseException as e:  # noqa: BLE001 - everything is reported to the parent
+        from go_core.errors import GoError
+
+        is_go = isinstance(e, GoError)
+        sink.send(
+            {
+                "type": "error",
+                "kind": "go" if is_go else "crash",
+                "exc_type": type(e).__name__,
+                "message": str(e),
+                "traceback": traceback.format_exc(),
+            }
+        )
+        code = EXIT_GO_ERROR if is_go else EXIT_CRASH
+    sys.stdout.flush()
+    sys.stderr.flush()
+    sink.close()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""lora: fine-tune the repair model (SD1.5 + ControlNet-tile + CLIP) with LoRA on self-generated pairs.
+
+LoRA rank 64 (peft) on the UNet's and the ControlNet's transformer blocks and the CLIP text encoder's
+attention; AdamW lr 1e-3, β (0.9, 0.999), 1800 steps, batch 1, prompt "a photo of xxy5syt00"; ε-prediction
+MSE with the degraded image as ControlNet condition and the clean reference as target (paper Sec. 3.4).
+Pairs: Algorithm 1 (noise pairs on the fly, else leave-one-out pairs). Checkpoints into ctx.checkpoint_dir
+every ``checkpoint_every`` steps; a killed step resumes from the newest one.
+
+Weights come from local paths (params ``sd15_path``, ``controlnet_path``, optional ``clip_path`` /
+``single_file_config``, or $GO_SD15_PATH / $GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG).
+Without them the step does not fake anything: ``lora.json`` says ``{"status": "skipped", "reason": ...}``
+and the repair step (and so the report) falls back to the coarse model.
+``finetune: false`` is the "no fine-tuning" ablation: ``status: "pretrained"`` (the repair step then uses the
+pretrained ControlNet without LoRA).
+
+Outputs: ``lora.json``; with status ok also ``lora.safetensors`` (only the LoRA tensors).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from go_core.errors import MissingWeightsError
+from go_core.io.atomic import atomic_write_json
+
+VERSION = "1"
+
+
+def _skip(ctx, reason: str, **extra) -> None:
+    atomic_write_json(Path(ctx.out_dir) / "lora.json", {"status": "skipped", "reason": reason, **extra})
+    ctx.record(status="skipped", reason=reason)
+    ctx.log.warning("lora skipped: %s", reason)
+
+
+def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    import torch
+
+    from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
+    from go_core.diffusion.models import WeightPaths, load_repair_models, missing_weights, precision_dtypes
+    from go_core.diffusion.sampler import RepairDiffusion
+    from go_core.gaussians import Gaussians
+    from go_core.repair.data import training_views
+    from go_core.repair.noise import NoiseStats
+    from go_core.repair.pairs import LooPairs, PairSource
+    from go_core.repair.tuning import TuneSettings, tune
+
+    paths = WeightPaths.resolve(params)
+    weights = paths.describe()
+    problems = missing_weights(paths)
+    if problems:
+        _skip(ctx, "repair model weights missing: " + " | ".join(problems), weights=weights)
+        return
+    prompt = str(params.get("prompt", "a photo of xxy5syt00"))
+    if not params.get("finetune", True):
+        atomic_write_json(
+            Path(ctx.out_dir) / "lora.json",
+            {
+                "status": "pretrained",
+                "reason": "ablation: no fine-tuning (pretrained ControlNet only)",
+                "weights": weights,
+                "prompt": prompt,
+            },
+        )
+        ctx.record(status="pretrained", reason="ablation: no fine-tuning")
+        return
+
+    device = str(ctx.device)
+    weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
+    try:
+        models = load_repair_models(paths, device=device, dtype=weight_dtype)
+    except MissingWeightsError as exc:
+        _skip(ctx, exc.message, weights=weights)
+        return
+    spec = LoraSpec(
+        rank=int(params.get("rank", 64)),
+        alpha=float(params.get("alpha", params.get("rank", 64))),
+        unet=bool(params.get("unet", True)),
+        controlnet=bool(params.get("controlnet", True)),
+        text_encoder=bool(params.get("text_encoder", True)),
+    )
+    counts = add_lora(models, spec)
+    diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
+
+    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    noise_cfg = json.loads((Path(inputs["noise_pairs"]) / "noise_pairs.json").read_text())
+    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
+    loo = LooPairs(inputs["loo"]) if params.get("use_loo_pairs", True) else None
+    source = PairSource(
+        coarse,
+        NoiseStats.from_json(noise_cfg["stats"]),
+        views,
+        loo,
+        p0=float(noise_cfg["p0"]),
+        decay=float(noise_cfg["decay"]),
+        backend=str(params.get("backend", "auto")),
+        noise_scale=float(noise_cfg["noise_scale"]),
+    )
+    settings = TuneSettings(
+        steps=int(params.get("steps", 1800)),
+        lr=float(params.get("lr", 1e-3)),
+        betas=tuple(float(b) for b in params.get("betas", [0.9, 0.999])),
+        weight_decay=float(params.get("weight_decay", 1e-2)),
+        resolution=int(params.get("resolution", 512)),
+        checkpoint_every=int(params.get("checkpoint_every", 300)),
+    )
+    if settings.resolution % 64:
+        raise ValueError(f"lora.resolution must be a multiple of 64, got {settings.resolution}")
+    torch.manual_seed(int(ctx.seed))
+    progress = ctx.progress(settings.steps, "LoRA tuning")
+    summary = tune(
+        diffusion,
+        spec,
+        source,
+        settings,
+        ctx.seed,
+        checkpoint_dir=Path(ctx.checkpoint_dir),
+        on_step=lambda step, loss: progress.advance(),
+        fingerprint_extra=device,
+    )
+    progress.close()
+    resumed_from = summary.pop("resumed_from")
+    save_lora(Path(ctx.out_dir) / "lora.safetensors", models, spec, extra={"prompt": prompt})
+    info = {
+        "status": "ok",
+        "weights": weights,
+        "prompt": prompt,
+        "lora": "lora.safetensors",
+        "spec": asdict(spec),
+        "lora_parameters": counts,
+        "settings": asdict(settings),
+        "device": device,
+        "precision": str(weight_dtype).replace("torch.", ""),
+        **summary,
+    }
+    atomic_write_json(Path(ctx.out_dir) / "lora.json", info)
+    log = summary["loss_log"]
+    ctx.record(
+        status="ok",
+        steps=settings.steps,
+        resumed_from=resumed_from,
+        loss_first=log[0]["loss"] if log else None,
+        loss_last=log[-1]["loss"] if log else None,
+        pairs_used=summary["pairs_used"],
+        lora_parameters=sum(counts.values()),
+    )

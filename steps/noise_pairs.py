@@ -1,0 +1,75 @@
+"""noise_pairs: the 3D-noise configuration for repair-model tuning, and a preview of noise pairs.
+
+Noise pairs are generated on the fly during the ``lora`` step (Algorithm 1: with probability p_manual a
+fresh render of the coarse model with 3D noise on position, scale, rotation and opacity, never SH, drawn
+from the leave-one-out statistics; p_manual starts at ``p0`` and is multiplied by ``decay`` per noise pair
+used). This step fixes that configuration in ``noise_pairs.json`` (statistics, schedule, noise scale) and
+writes ``preview.png``: one row per reference view: photo on white | coarse render | noisy render.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from go_core.gaussians import Gaussians
+from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core.repair.data import on_white, render_rgb_alpha, to_uint8, training_views
+from go_core.repair.noise import NoiseStats
+from go_core.repair.pairs import noise_pair
+
+VERSION = "1"
+
+
+def _thumb(img: np.ndarray, size: int) -> np.ndarray:
+    from PIL import Image
+
+    h, w = img.shape[:2]
+    f = min(1.0, size / max(h, w))
+    return np.asarray(
+        Image.fromarray(img).resize((max(1, round(w * f)), max(1, round(h * f))), Image.BILINEAR)
+    )
+
+
+def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    loo = json.loads((Path(inputs["loo"]) / "loo.json").read_text())
+    stats = NoiseStats.from_json(loo["stats"])
+    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
+    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    backend = str(params.get("backend", "auto"))
+    scale = float(params.get("noise_scale", 1.0))
+    config = {
+        "status": "ok",
+        "stats": stats.to_json(),
+        "p0": float(params.get("p0", 1.0)),
+        "decay": float(params.get("decay", 0.995)),
+        "noise_scale": scale,
+        "attributes": ["means", "log_scales", "quats", "opacity_logits"],
+        "loo_pairs": len(loo.get("pairs", [])),
+    }
+    rows = []
+    size = int(params.get("preview_size", 128))
+    if size > 0:
+        gen = torch.Generator().manual_seed(int(ctx.seed) * 7919 + 17)
+        for k, v in enumerate(views):
+            pair = noise_pair(coarse, stats, v, k, gen, backend, scale)
+            plain, _ = render_rgb_alpha(coarse, v.camera, 1.0, backend)
+            imgs = [to_uint8(on_white(v.image, v.mask)), to_uint8(plain), to_uint8(pair.degraded)]
+            row = np.concatenate([_thumb(i, size) for i in imgs], axis=1)
+            rows.append(row)
+        width = max(r.shape[1] for r in rows)
+        rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]
+        sheet = np.concatenate(rows, axis=0)
+
+        def write(tmp: Path) -> None:
+            from PIL import Image
+
+            Image.fromarray(sheet).save(tmp, format="PNG")
+
+        atomic_write(Path(ctx.out_dir) / "preview.png", write)
+        config["preview"] = "preview.png"
+    atomic_write_json(Path(ctx.out_dir) / "noise_pairs.json", config)
+    ctx.record(p0=config["p0"], decay=config["decay"], loo_pairs=config["loo_pairs"], preview=size > 0)

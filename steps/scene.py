@@ -1,0 +1,42 @@
+"""The ``scene`` step: read the scene folder, validate it, choose the training views, downscale, and write
+the artifact every downstream step reads (``go_core.scene.artifact``: ``scene.json`` + ``views.npz``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from go_core.errors import SceneError
+from go_core.scene.artifact import MANIFEST, save_scene_artifact
+from go_core.scene.loader import load_scene
+
+VERSION = "1"
+
+
+def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""
+    views = int(params.get("views", 0))
+    max_size = int(params.get("max_size", 0))
+    scene = load_scene(inputs["folder"], views=views, max_size=max_size)
+    manifest = save_scene_artifact(scene, ctx.out_dir, views_requested=views, max_size=max_size)
+    from go_pipeline.manifest import schema_problems
+
+    problems = schema_problems("scene_manifest", manifest)
+    if problems:  # a bug, not bad input: the artifact must never be marked complete
+        raise SceneError(f"scene.json does not match scene_manifest.schema.json: {problems[0]}", MANIFEST)
+    sizes = sorted({f"{c['width']}x{c['height']}" for c in manifest["train"] + manifest["test"]})
+    ctx.log.info(
+        "scene: %s, %d train + %d test views, %s (%s)",
+        scene.format,
+        len(scene.train),
+        len(scene.test),
+        ", ".join(sizes),
+        scene.split_source,
+    )
+    ctx.record(
+        format=scene.format,
+        train_views=[v.name for v in scene.train],
+        test_views=len(scene.test),
+        resolutions=sizes,
+        split_source=scene.split_source,
+        masks=sum(v.mask is not None for v in scene.train + scene.test),
+    )

@@ -1,0 +1,118 @@
+"""Shared helpers for the repair tests: tiny random SD/ControlNet/CLIP weights and a 1-thread torch scope.
+
+(On the shared 2-core machine, torch's default 2 intra-op threads oversubscribe the CPU when other processes
+run, making tiny-model tests ~100x slower; one thread is fast and deterministic.)
+"""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import torch
+
+
+@contextlib.contextmanager
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+def tiny_weights(root: Path) -> dict[str, str]:
+    from go_core.diffusion.build import write_tiny_weights
+
+    marker = root / "sd15" / "model_index.json"
+    if marker.is_file():
+        return {"sd15_path": str(root / "sd15"), "controlnet_path": str(root / "controlnet_tile")}
+    with one_thread():
+        return write_tiny_weights(root, seed=0)
+
+
+# A tiny synthetic object and step context for end-to-end tests of the loo / noise_pairs / lora / repair steps.
+
+
+class FakeProgress:
+    def __init__(self) -> None:
+        self.n = 0
+
+    def advance(self, n: int = 1) -> None:
+        self.n += n
+
+    def close(self) -> None:
+        pass
+
+
+class FakeCtx:
+    """The StepContext protocol (steps/_api.py) without the runner."""
+
+    def __init__(self, root: Path, step: str, seed: int = 0) -> None:
+        import logging
+
+        self.step = step
+        self.out_dir = root / "out" / step
+        self.checkpoint_dir = root / "ckpt" / step
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+        self.seed = seed
+        self.device = "cpu"
+        self.log = logging.getLogger(f"test.{step}")
+        self.records: dict = {}
+
+    def progress(self, total: int, description: str = "", completed: int = 0) -> FakeProgress:
+        return FakeProgress()
+
+    def record(self, **values) -> None:
+        self.records.update(values)
+
+
+def _ring(prefix: str, azimuths, elevation: float, size: int):
+    import numpy as np
+
+    from go_core.camera import look_at
+
+    K = np.array([[size * 0.9, 0.0, size / 2], [0.0, size * 0.9, size / 2], [0.0, 0.0, 1.0]])
+    cams = []
+    for i, az in enumerate(np.radians(azimuths)):
+        el = np.radians(elevation)
+        pos = 3.2 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        cams.append(look_at(f"{prefix}_{i}", pos, np.zeros(3), np.array([0.0, 0.0, 1.0]), K, size, size))
+    return cams
+
+
+def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path]:
+    """Scene artifact (4 train + 2 test views of a coloured blob), hull and coarse artifacts under ``root``."""
+    import numpy as np
+
+    from go_core.gaussians import Gaussians
+    from go_core.repair.data import render_rgb_alpha
+    from go_core.scene.artifact import save_scene_artifact
+    from go_core.scene.types import Scene, View
+
+    g = torch.Generator().manual_seed(0)
+    pts = torch.randn(n, 3, generator=g)
+    pts = 0.6 * pts / pts.norm(dim=1, keepdim=True) * torch.rand(n, 1, generator=g) ** (1 / 3)
+    truth = Gaussians.from_points(pts, (pts + 0.6) / 1.2, torch.full((n,), 0.12), 0.8, 1)
+
+    def views(cams):
+        out = []
+        for c in cams:
+            rgb, alpha = render_rgb_alpha(truth, c, 0.0, "auto")
+            a = alpha.clamp(0, 1)
+            straight = (rgb / a.clamp_min(1e-3)[..., None]).clamp(0, 1) * (a[..., None] > 1e-3)
+            out.append(View(c, straight.numpy().astype(np.float32), a.numpy().astype(np.float32)))
+        return out
+
+    scene = Scene(root / "scene", "nerf", views(_ring("train", [30, 120, 210, 300], 20, size)),
+                  views(_ring("test", [75, 165], 40, size)))
+    dirs = {"scene": root / "scene", "hull": root / "hull", "coarse": root / "coarse"}
+    save_scene_artifact(scene, dirs["scene"])
+    hull = Gaussians.from_points(pts * 1.2, torch.full((n, 3), 0.5), torch.full((n,), 0.1), 0.1, 1)
+    hull.save(dirs["hull"] / "gaussians.npz")
+    coarse = truth.map(lambda t: t.clone())
+    coarse.means.add_(0.05 * torch.randn(n, 3, generator=g))  # a slightly wrong "coarse" model
+    coarse.save(dirs["coarse"] / "gaussians.npz")
+    return dirs

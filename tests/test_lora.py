@@ -1,0 +1,116 @@
+"""LoRA on the repair model: frozen bit-identical base, only LoRA trains, loss falls, save/load roundtrip."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from go_core.diffusion.lora import (
+    LoraSpec,
+    add_lora,
+    load_lora_state_dict,
+    lora_parameters,
+    read_lora,
+    save_lora,
+)
+from go_core.diffusion.models import WeightPaths, load_repair_models
+from go_core.diffusion.sampler import RepairDiffusion
+from tests._tiny_repair import one_thread, tiny_weights
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory):
+    return tiny_weights(tmp_path_factory.mktemp("tiny_repair"))
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    with one_thread():
+        yield
+
+
+def _base_state(models) -> dict[str, torch.Tensor]:
+    """Every non-LoRA tensor, keyed by its name without peft's ``base_layer`` wrapper."""
+    out = {}
+    for part, module in models.modules().items():
+        for k, v in module.state_dict().items():
+            if "lora_" not in k:
+                out[f"{part}.{k.replace('.base_layer', '')}"] = v.detach().clone()
+    return out
+
+
+def _pair():
+    g = torch.Generator().manual_seed(3)
+    clean = torch.rand(1, 3, 64, 64, generator=g)
+    return (clean + 0.3 * torch.randn(1, 3, 64, 64, generator=g)).clamp(0, 1), clean
+
+
+def test_lora_trains_only_lora_and_keeps_base_bit_identical(weights):
+    m = load_repair_models(WeightPaths.resolve(weights, env={}))
+    before = _base_state(m)
+    spec = LoraSpec(rank=8, alpha=8)
+    counts = add_lora(m, spec)
+    assert set(counts) == {"unet", "controlnet", "text_encoder"} and all(n > 0 for n in counts.values())
+    trainable = [
+        (part, n) for part, mod in m.modules().items() for n, p in mod.named_parameters() if p.requires_grad
+    ]
+    assert trainable and all("lora_" in n for _, n in trainable)
+    assert {p for p, _ in trainable} == {"unet", "controlnet", "text_encoder"}  # never the VAE
+    names = [n for _, n in trainable]
+    assert any("transformer_blocks" in n and "attn2.to_k" in n for n in names)
+    assert any("self_attn.q_proj" in n for n in names)
+    params = lora_parameters(m)
+    assert sum(p.numel() for p in params) == sum(counts.values())
+
+    d = RepairDiffusion(m)
+    deg, clean = _pair()
+    opt = torch.optim.AdamW(params, lr=1e-3, betas=(0.9, 0.999))
+    start = [p.detach().clone() for p in params]
+    for _ in range(3):
+        loss = d.tuning_loss(deg, clean, torch.Generator().manual_seed(5))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    after = _base_state(m)
+    assert before.keys() == after.keys()
+    assert all(torch.equal(before[k], after[k]) for k in before)  # bit-identical base weights
+    assert any(not torch.equal(a, p) for a, p in zip(start, params, strict=True))
+
+
+def test_tuning_loss_falls_on_tiny_overfit_case(weights):
+    m = load_repair_models(WeightPaths.resolve(weights, env={}))
+    add_lora(m, LoraSpec(rank=8, alpha=8))
+    d = RepairDiffusion(m)
+    deg, clean = _pair()
+    opt = torch.optim.AdamW(lora_parameters(m), lr=1e-2)
+    losses = []
+    for _ in range(25):
+        loss = d.tuning_loss(deg, clean, torch.Generator().manual_seed(7))  # same t and ε every step
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    assert losses[-1] < 0.5 * losses[0], losses
+
+
+def test_lora_save_load_roundtrip_reproduces_outputs(weights, tmp_path):
+    spec = LoraSpec(rank=4, alpha=8)
+    m = load_repair_models(WeightPaths.resolve(weights, env={}))
+    add_lora(m, spec)
+    with torch.no_grad():
+        for p in lora_parameters(m):
+            p.add_(0.05 * torch.randn(p.shape, generator=torch.Generator().manual_seed(p.numel())))
+    path = save_lora(tmp_path / "lora.safetensors", m, spec)
+    spec2, state = read_lora(path)
+    assert spec2 == spec and all(k.split(".")[0] in {"unet", "controlnet", "text_encoder"} for k in state)
+    assert all("lora_" in k for k in state)  # only LoRA tensors are saved
+    m2 = load_repair_models(WeightPaths.resolve(weights, env={}))
+    add_lora(m2, spec2)
+    load_lora_state_dict(m2, spec2, state)
+    deg, clean = _pair()
+    with torch.no_grad():
+        a = RepairDiffusion(m).tuning_loss(deg, clean, torch.Generator().manual_seed(1))
+        b = RepairDiffusion(m2).tuning_loss(deg, clean, torch.Generator().manual_seed(1))
+        base = load_repair_models(WeightPaths.resolve(weights, env={}))
+        c = RepairDiffusion(base).tuning_loss(deg, clean, torch.Generator().manual_seed(1))
+    assert torch.equal(a, b) and not torch.equal(a, c)
