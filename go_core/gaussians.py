@@ -118,16 +118,11 @@ class Gaussians:
 
     # Storage (deterministic bytes for equal content) -----------------------------------------------------
     def save(self, path: str | Path) -> Path:
-        """Write an ``.npz`` atomically (float32)."""
-        from go_core.io.atomic import atomic_write
+        """Write a deterministic ``.npz`` atomically (float32)."""
+        from go_core.io.npz import write_npz_deterministic
 
         arrays = {k: v.detach().cpu().to(torch.float32).numpy() for k, v in self.tensors().items()}
-
-        def write(tmp: Path) -> None:
-            with open(tmp, "wb") as f:
-                np.savez(f, **arrays)
-
-        return atomic_write(path, write)
+        return write_npz_deterministic(path, arrays)
 
     @staticmethod
     def load(path: str | Path) -> Gaussians:

@@ -54,11 +54,8 @@ class SinkLogHandler(logging.Handler):
 class StepProgress:
     """A progress bar handle; advances are batched to at most ~10 events per second."""
 
-    _ids = 0
-
-    def __init__(self, sink: EventSink, total: int, description: str, completed: int) -> None:
-        StepProgress._ids += 1
-        self.id = StepProgress._ids
+    def __init__(self, sink: EventSink, total: int, description: str, completed: int, bar_id: int) -> None:
+        self.id = bar_id
         self.sink = sink
         self._pending = 0
         self._last = 0.0
@@ -121,6 +118,7 @@ class RunnerStepContext:
         self.sink = sink
         self.log = log
         self.records: dict[str, Any] = {}
+        self._bars = 0
 
     @property
     def device(self) -> str:
@@ -143,7 +141,8 @@ class RunnerStepContext:
         return "cpu"
 
     def progress(self, total: int, description: str = "", completed: int = 0) -> StepProgress:
-        return StepProgress(self.sink, total, description or self.step, completed)
+        self._bars += 1
+        return StepProgress(self.sink, total, description or self.step, completed, self._bars)
 
     def record(self, **values: Any) -> None:
         json.dumps(values, allow_nan=False, default=None)  # raise here, not later, if not JSON-able

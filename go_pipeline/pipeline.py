@@ -155,6 +155,11 @@ def check_param_type(default: Any, value: Any, what: str, path: Path | str) -> A
     want, got = _type_name(default), _type_name(value)
     if want == "float" and got == "int":
         return float(value)
+    if want == "float" and got == "str":  # YAML 1.1 reads 1e-3 (no dot) as a string
+        try:
+            return float(value)
+        except ValueError:
+            pass
     if want != got:
         raise PipelineError(f"{what}: expected {want} (default {_show(default)}), got {got}", path)
     return value

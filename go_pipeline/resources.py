@@ -13,8 +13,12 @@ _RESOURCES = _PKG / "_resources"
 _CHECKOUT = _PKG.parent
 
 
+def _in_checkout() -> bool:
+    return (_CHECKOUT / "pyproject.toml").is_file() and (_CHECKOUT / "steps" / "_api.py").is_file()
+
+
 def _find(name: str) -> Path:
-    for base in (_CHECKOUT, _RESOURCES):
+    for base in (_CHECKOUT, _RESOURCES) if _in_checkout() else (_RESOURCES,):
         candidate = base / name
         if candidate.exists():
             return candidate

@@ -50,12 +50,18 @@ def _lpips(net: str, weight: float):
 def settings_from(params: dict):
     from go_core.repair.repair import RepairSettings
 
-    names = {f.name for f in fields(RepairSettings)}
+    names = {f.name for f in fields(RepairSettings)} - {"densify"}
     kw = {k: params[k] for k in names if k in params}
     if "t_range" in kw:
         kw["t_range"] = tuple(float(x) for x in kw["t_range"])
-    if "densify" in kw:
-        kw["densify"] = dict(kw["densify"])
+    default = RepairSettings().densify
+    kw["densify"] = {
+        "start_iter": int(params.get("densify_from", default["start_iter"])),
+        "stop_iter": int(params.get("densify_until", default["stop_iter"])),
+        "every": int(params.get("densify_every", default["every"])),
+        "reset_every": int(params.get("opacity_reset_every", default["reset_every"])),
+        "min_opacity": float(params.get("prune_opacity", default["min_opacity"])),
+    }
     return RepairSettings(**kw)
 
 

@@ -63,6 +63,7 @@ def test_good_pipeline_order_and_params(tmp_path, step_module):
     assert params["b"] == {"n": 1, "rate": 2.0, "flag": True, "name": "x", "items": [3], "anything": None}
     assert isinstance(params["b"]["rate"], float)  # an int is accepted for a float param and converted
     assert p.resolve_params("dotted")["b"]["name"] == "y"
+    assert p.resolve_params(None, {"b.rate": "1e-3"})["b"]["rate"] == 0.001  # YAML 1.1 reads 1e-3 as str
     assert p.resolve_params(None, {"b": {"anything": {"k": [1]}}})["b"]["anything"] == {"k": [1]}
     assert read_step_version(MOD, p.path, "a") == "7"
 

@@ -29,9 +29,7 @@ to the original scene folder.
 
 from __future__ import annotations
 
-import io
 import json
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -39,14 +37,14 @@ import numpy as np
 
 from go_core.camera import Camera
 from go_core.errors import SceneError
-from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core.io.atomic import atomic_write_json
+from go_core.io.npz import write_npz_deterministic  # noqa: F401  (re-exported)
 from go_core.scene.types import Scene, View
 
 MANIFEST = "scene.json"
 ARRAYS = "views.npz"
 SCHEMA_ID = "go-pipeline/scene-manifest"
 SCHEMA_VERSION = 1
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed timestamp: equal content gives equal bytes
 
 
 def _array_name(split: str, index: int) -> str:
@@ -67,23 +65,6 @@ def _expand(a: np.ndarray) -> np.ndarray:
     if a.dtype == np.uint8:
         return a.astype(np.float32) / np.float32(255.0)
     return a.astype(np.float32)
-
-
-def write_npz_deterministic(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
-    """Write an ``.npz`` (readable by ``np.load``) whose bytes depend only on the arrays: sorted names,
-    fixed zip timestamps, deflate compression. ``np.savez`` stamps the current time into the zip."""
-
-    def write(tmp: Path) -> None:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=6) as zf:
-            for name in sorted(arrays):
-                buf = io.BytesIO()
-                np.lib.format.write_array(buf, np.ascontiguousarray(arrays[name]), allow_pickle=False)
-                info = zipfile.ZipInfo(name + ".npy", date_time=_ZIP_DATE)
-                info.compress_type = zipfile.ZIP_DEFLATED
-                info.external_attr = 0o644 << 16
-                zf.writestr(info, buf.getvalue(), compresslevel=6)
-
-    return atomic_write(path, write)
 
 
 def _camera_json(view: View, split: str, index: int, root: Path | None) -> dict[str, Any]:

@@ -1,0 +1,87 @@
+"""The loo step: leave-one-out runs, pairs and statistics; a killed step resumes without redoing runs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from go_core.gaussians import Gaussians
+from go_core.repair.noise import difference_stats
+from tests._tiny_repair import FakeCtx, one_thread, synthetic_inputs
+
+PARAMS = {"phase1_iterations": 20, "phase2_iterations": 10, "renders": 3, "checkpoint_every": 10}
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    with one_thread():
+        yield
+
+
+@pytest.fixture(scope="module")
+def done(tmp_path_factory):
+    """Inputs and one uninterrupted loo run."""
+    from steps import loo
+
+    root = tmp_path_factory.mktemp("loo")
+    with one_thread():
+        dirs = synthetic_inputs(root)
+        ctx = FakeCtx(root, "loo")
+        loo.run(ctx, {**dirs, "mask": None}, PARAMS)
+    return root, dirs, ctx
+
+
+def test_loo_pairs_and_statistics(done):
+    root, dirs, ctx = done
+    info = json.loads((ctx.out_dir / "loo.json").read_text())
+    assert len(info["runs"]) == 4 and len(info["pairs"]) == 4 * 3
+    assert ctx.records["runs"] == 4 and ctx.records["pairs"] == 12
+    with np.load(ctx.out_dir / "loo_pairs.npz") as data:
+        for p in info["pairs"]:
+            deg, clean = data[p["degraded"]], data[p["clean"]]
+            assert deg.shape == clean.shape == (64, 64, 3) and deg.dtype == np.uint8
+        # the degraded renders of one view change over phase 2 (they are taken at different iterations)
+        assert not np.array_equal(data["degraded_0_0"], data["degraded_0_2"])
+    steps = [p["phase2_step"] for p in info["pairs"] if p["view"] == 0]
+    assert steps == [1, 10, 11]  # first and last phase-2 iteration, plus the final state
+    # the statistics are those of (phase 2 - phase 1) over the same Gaussians of every run
+    pairs = []
+    for k in range(4):
+        run = ctx.checkpoint_dir / f"run_{k:02d}"
+        before, after = Gaussians.load(run / "before.npz"), Gaussians.load(run / "after.npz")
+        assert len(before) == len(after)
+        assert not torch.equal(before.means, after.means)
+        assert torch.equal(before.sh.shape and before.sh[:0], after.sh[:0])
+        pairs.append((before, after))
+    stats = difference_stats(pairs)
+    assert info["stats"] == json.loads(json.dumps(stats.to_json()))
+    assert all(s > 0 for s in stats.std["means"])
+
+
+def test_killed_loo_resumes_without_redoing_finished_runs(done, tmp_path, monkeypatch):
+    from go_core.repair import loo as core
+    from steps import loo
+
+    _, dirs, first = done
+    calls: list[int] = []
+    original = core.run_one
+
+    def flaky(index, *a, **k):
+        calls.append(index)
+        if index == 2 and calls.count(2) == 1:
+            raise KeyboardInterrupt("simulated kill")
+        return original(index, *a, **k)
+
+    monkeypatch.setattr(loo, "run_one", flaky)
+    ctx = FakeCtx(tmp_path, "loo")
+    with pytest.raises(KeyboardInterrupt):
+        loo.run(ctx, {**dirs, "mask": None}, PARAMS)
+    assert calls == [0, 1, 2]
+    ctx2 = FakeCtx(tmp_path, "loo")  # same checkpoint folder, fresh output folder
+    loo.run(ctx2, {**dirs, "mask": None}, PARAMS)
+    assert calls == [0, 1, 2, 2, 3]  # finished runs 0 and 1 are not run again
+    for name in ("loo.json", "loo_pairs.npz"):
+        assert (ctx2.out_dir / name).read_bytes() == (first.out_dir / name).read_bytes()
