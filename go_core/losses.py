@@ -111,7 +111,7 @@ def normalize_depth(depth: torch.Tensor, valid: torch.Tensor | None = None, eps:
         return torch.zeros_like(depth)
     med = v.median()
     mad = (v - med).abs().mean()
-    return (depth - med) / (mad + eps)
+    return (depth - med) / mad.clamp_min(eps)
 
 
 def depth_loss(

@@ -190,19 +190,19 @@ def view_loss(
     ssv = ssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
     photo = (1.0 - config.lambda_dssim) * l1v + config.lambda_dssim * (1.0 - ssv)
     loss = view.weight * photo
-    parts = {"l1": float(l1v), "ssim": float(ssv)}
+    parts = {"l1": l1v.item(), "ssim": ssv.item()}
     lam_m = config.lambda_mask if view.mask_weight is None else view.mask_weight
     if view.mask is not None and lam_m > 0:
         bce = mask_bce(alpha, view.mask)
         loss = loss + lam_m * bce
-        parts["mask_bce"] = float(bce)
+        parts["mask_bce"] = bce.item()
     if view.depth is not None and config.lambda_depth > 0:
         valid = (alpha.detach() > 0.5) & ((view.mask > 0.5) if view.mask is not None else True)
         if int(valid.sum()) >= config.depth_min_pixels:
             disp = 1.0 / out.depth[0, ..., 0].clamp_min(1e-6)
             dl = depth_loss(disp, view.depth, valid)
             loss = loss + config.lambda_depth * dl
-            parts["depth"] = float(dl)
+            parts["depth"] = dl.item()
     return loss, parts
 
 
@@ -305,7 +305,7 @@ def optimize(
             extra = extra_loss(step, g, out, view, index)
             if extra is not None:
                 loss = loss + extra
-                parts["extra"] = float(extra)
+                parts["extra"] = extra.item()
         loss.backward()
         strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
         opt.step()
@@ -327,10 +327,10 @@ def optimize(
         stats.max_count = max(stats.max_count, len(opt))
         stats.iterations = step
         if step % max(config.log_every, 1) == 0 or step == config.iterations:
-            stats.loss_log.append({"step": step, "loss": round(float(loss), 6), "n": len(opt),
+            stats.loss_log.append({"step": step, "loss": round(loss.item(), 6), "n": len(opt),
                                    **{k: round(v, 6) for k, v in parts.items()}})
         if on_progress is not None:
-            on_progress(step, {"loss": float(loss), "n": len(opt), "view": index, **parts, **changed})
+            on_progress(step, {"loss": loss.item(), "n": len(opt), "view": index, **parts, **changed})
         if checkpoint is not None and checkpoint.every > 0 and step % checkpoint.every == 0 \
                 and step < config.iterations:
             stats.densify = dict(getattr(strategy, "counts", {}))
@@ -362,8 +362,65 @@ __all__ = [
     "NoDensify",
     "TrainStats",
     "TrainView",
-    "fields",
+    "config_from_params",
     "optimize",
     "scene_extent",
     "view_loss",
 ]
+
+
+# Flat step params (pipeline.yaml `coarse:` section) → CoarseConfig ---------------------------------------
+PARAM_MAP: dict[str, tuple[str | None, str]] = {
+    # param name: (sub-config or None, field)
+    "iterations": (None, "iterations"),
+    "sh_degree": (None, "sh_degree"),
+    "sh_increase_every": (None, "sh_increase_every"),
+    "lambda_dssim": (None, "lambda_dssim"),
+    "lambda_mask": (None, "lambda_mask"),
+    "lambda_depth": (None, "lambda_depth"),
+    "random_background": (None, "random_background"),
+    "backend": (None, "backend"),
+    "position_lr_init": ("lr", "means_init"),
+    "position_lr_final": ("lr", "means_final"),
+    "position_lr_max_steps": ("lr", "means_max_steps"),
+    "feature_lr": ("lr", "sh0"),
+    "opacity_lr": ("lr", "opacity"),
+    "scaling_lr": ("lr", "scaling"),
+    "rotation_lr": ("lr", "rotation"),
+    "densify_from": ("densify", "start_iter"),
+    "densify_until": ("densify", "stop_iter"),
+    "densify_every": ("densify", "every"),
+    "densify_grad_threshold": ("densify", "grad_threshold"),
+    "percent_dense": ("densify", "percent_dense"),
+    "min_opacity": ("densify", "min_opacity"),
+    "opacity_reset_every": ("densify", "reset_every"),
+    "max_gaussians": ("densify", "max_gaussians"),
+    "prune_no_contribution": ("densify", "prune_no_contribution"),
+    "floaters": ("floaters", "enabled"),
+    "floater_every": ("floaters", "every"),
+    "floater_from": ("floaters", "start_iter"),
+    "floater_until": ("floaters", "stop_iter"),
+    "floater_schedule": ("floaters", "schedule"),
+}
+
+
+def config_from_params(params: dict) -> CoarseConfig:
+    """A ``CoarseConfig`` from flat step params (unknown keys are ignored; the step handles its own)."""
+    cfg = CoarseConfig()
+    for key, value in params.items():
+        if key not in PARAM_MAP:
+            continue
+        sub, name = PARAM_MAP[key]
+        target = cfg if sub is None else getattr(cfg, sub)
+        current = getattr(target, name)
+        if isinstance(current, bool):
+            value = bool(value)
+        elif isinstance(current, int):
+            value = int(value)
+        elif isinstance(current, float):
+            value = float(value)
+        setattr(target, name, value)
+        if key == "feature_lr":
+            cfg.lr.shN = float(value) / 20.0
+    cfg.floaters.__post_init__()
+    return cfg

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 import importlib.util
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -157,9 +158,11 @@ def check_param_type(default: Any, value: Any, what: str, path: Path | str) -> A
         return float(value)
     if want == "float" and got == "str":  # YAML 1.1 reads 1e-3 (no dot) as a string
         try:
-            return float(value)
+            value, got = float(value), "float"
         except ValueError:
             pass
+    if got == "float" and not math.isfinite(value):
+        raise PipelineError(f"{what}: must be a finite number", path)
     if want != got:
         raise PipelineError(f"{what}: expected {want} (default {_show(default)}), got {got}", path)
     return value

@@ -196,7 +196,15 @@ def run_pipeline(
     from go_pipeline.lock import WorkdirLock
 
     started, t0 = _utc_now(), time.perf_counter()
-    plan.workdir.mkdir(parents=True, exist_ok=True)
+    try:
+        plan.workdir.mkdir(parents=True, exist_ok=True)
+        probe = plan.workdir / ".write-test"
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        raise GoError(
+            f"cannot write the work dir ({e.strerror or e}); choose one with --workdir", plan.workdir
+        ) from None
     with WorkdirLock(plan.workdir) as lock:
         log_path = _new_log_path(plan.workdir)
         display = Display(log_path, quiet=quiet, debug=debug)
@@ -258,7 +266,7 @@ def _run_one(
     key = _key_for(plan, name, inputs)
     final = store.artifact_path(plan.workdir, name, key)
     display.current_step = name
-    if not forced and store.is_complete(final):
+    if not forced and _intact(final, spec):
         manifest = store.load_manifest(final)
         done[name] = manifest
         store.write_ref(plan.workdir, name, key)
@@ -368,6 +376,11 @@ def _run_one(
     return StepResult(name, status, key, final, False, result.wall_s, result.records)
 
 
+def _intact(artifact: Path, spec: StepSpec) -> bool:
+    """Complete (manifest present) and still holding every declared output (stat only)."""
+    return store.is_complete(artifact) and all((artifact / o).is_file() for o in spec.outputs)
+
+
 def _rebuild_go_error(type_name: str, message: str) -> GoError:
     """The step's GoError (same class when it is one of go_core.errors) carrying its one-line message."""
     import go_core.errors as errors
@@ -462,7 +475,7 @@ def pipeline_status(
         inputs = _input_hashes(spec, scene_hash, done, plan.scene_dir)
         if inputs is not None:
             key = _key_for(plan, name, inputs)
-            if store.is_complete(store.artifact_path(plan.workdir, name, key)):
+            if _intact(store.artifact_path(plan.workdir, name, key), spec):
                 done[name] = store.load_manifest(store.artifact_path(plan.workdir, name, key))
                 rows.append(StatusRow(name, "fresh", "", key))
                 states[name] = "fresh"
@@ -473,6 +486,8 @@ def pipeline_status(
             state, reasons = "missing", ["never run"]
         else:
             state, reasons = "stale", _what_changed(plan, name, previous, inputs)
+            if key is not None and store.is_complete(store.artifact_path(plan.workdir, name, key)):
+                reasons.insert(0, "artifact damaged (a declared output is missing)")
         blocked = [u for u in spec.upstream if states.get(u) != "fresh"]
         if blocked:
             reasons.append("upstream " + ", ".join(f"{u} is {states[u]}" for u in blocked))

@@ -1,6 +1,7 @@
 """loo: leave-one-out runs → degraded/clean image pairs and the 3D-noise statistics (paper Sec. 3.4).
 
-For each of the N training views: coarse training on the other N−1 views from the hull (phase 1), then
+For each of the N training views: coarse training (the coarse step's own configuration, from coarse.json)
+on the other N−1 views from the hull (phase 1), then
 continued with all N views on a fixed set (phase 2); renders of the left-out view during phase 2 are the
 degraded images, the left-out photo (on white) the clean one. Statistics: per-attribute, per-channel mean
 and std of (phase-2 − phase-1) parameter differences, pooled over the runs.
@@ -14,6 +15,7 @@ Outputs: ``loo.json`` (runs, statistics, pair index), ``loo_pairs.npz`` (``degra
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict
 from pathlib import Path
 
@@ -28,8 +30,9 @@ from go_core.repair.noise import difference_stats
 VERSION = "1"
 
 
-def settings_from(params: dict, sh_degree: int) -> LooSettings:
+def settings_from(params: dict, sh_degree: int, coarse_config: dict | None = None) -> LooSettings:
     return LooSettings(
+        coarse_config=coarse_config,
         phase1_iterations=int(params.get("phase1_iterations", 6000)),
         phase2_iterations=int(params.get("phase2_iterations", 4000)),
         renders=int(params.get("renders", 10)),
@@ -49,7 +52,9 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         raise SceneError(f"leave-one-out needs at least 2 training views, got {len(views)}", inputs["scene"])
     init = Gaussians.load(Path(inputs["hull"]) / "gaussians.npz")
     coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
-    settings = settings_from(params, coarse.sh_degree)
+    coarse_json = Path(inputs["coarse"]) / "coarse.json"
+    coarse_config = json.loads(coarse_json.read_text()).get("config") if coarse_json.is_file() else None
+    settings = settings_from(params, coarse.sh_degree, coarse_config)
     extent = scene_extent([v.camera for v in views])
     workers = max(1, int(params.get("workers", 1)))
     run_dirs = [Path(ctx.checkpoint_dir) / f"run_{k:02d}" for k in range(len(views))]
@@ -109,7 +114,6 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     summary = {
         "status": "ok",
         "settings": asdict(settings),
-        "workers": workers,
         "runs": [
             {
                 "view": r.index,
@@ -125,6 +129,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     }
     atomic_write_json(Path(ctx.out_dir) / "loo.json", summary)
     ctx.record(
+        workers=workers,
         runs=len(runs),
         pairs=len(pairs),
         gaussians_compared=stats.count,

@@ -35,7 +35,6 @@ def _skip(ctx, reason: str, **extra) -> None:
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    import torch
 
     from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
     from go_core.diffusion.models import WeightPaths, load_repair_models, missing_weights, precision_dtypes
@@ -80,7 +79,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         controlnet=bool(params.get("controlnet", True)),
         text_encoder=bool(params.get("text_encoder", True)),
     )
-    counts = add_lora(models, spec)
+    counts = add_lora(models, spec, seed=int(ctx.seed))
     diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
 
     _, views = training_views(inputs["scene"], inputs.get("mask"))
@@ -107,7 +106,6 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     )
     if settings.resolution % 64:
         raise ValueError(f"lora.resolution must be a multiple of 64, got {settings.resolution}")
-    torch.manual_seed(int(ctx.seed))
     progress = ctx.progress(settings.steps, "LoRA tuning")
     summary = tune(
         diffusion,

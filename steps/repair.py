@@ -8,7 +8,8 @@ authors' densification schedule (every 100 from 400 to 3600, opacity reset every
 
 Skips honestly (``repair.json`` ``{"status": "skipped", "reason": ...}``, no ``gaussians.npz``; downstream
 steps then use the coarse model) when the lora step had no weights, or for the "no repair" ablation
-(``mode: no_repair``). ``use_lora: false`` is the "no fine-tuning" ablation (pretrained ControlNet only).
+(``mode: no_repair``). ``use_lora: false`` is the "no fine-tuning" ablation (pretrained ControlNet only);
+``loss: sds`` replaces L_rep by score distillation on the same paths (the "SDS" ablation row).
 The LPIPS term uses go_core.metrics' LPIPS (``lpips_net``) when its weights are installed, else it is off
 and ``repair.json`` says so.
 
@@ -135,6 +136,8 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         guidance_scale=float(params.get("guidance_scale", 1.0)),
     )
     settings = settings_from(params)
+    if settings.loss not in ("lrep", "sds"):
+        raise GoError(f"repair.loss must be 'lrep' or 'sds', got {settings.loss!r}")
     if settings.resolution % 64:
         raise GoError(f"repair.resolution must be a multiple of 64, got {settings.resolution}")
     lpips, lpips_note = _lpips(str(params.get("lpips_net", "vgg")), settings.lpips)
@@ -159,6 +162,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     info = {
         "status": "ok",
         "mode": mode,
+        "loss": settings.loss,
         "lora": "fine-tuned" if use_lora else "pretrained (no fine-tuning)",
         "lpips_term": lpips_note,
         "device": device,

@@ -32,7 +32,7 @@ def tiny_weights(root: Path) -> dict[str, str]:
         return write_tiny_weights(root, seed=0)
 
 
-# A tiny synthetic object and step context for end-to-end tests of the loo / noise_pairs / lora / repair steps.
+# A tiny synthetic object and a step context for end-to-end tests of the repair steps.
 
 
 class FakeProgress:
@@ -84,10 +84,11 @@ def _ring(prefix: str, azimuths, elevation: float, size: int):
 
 
 def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path]:
-    """Scene artifact (4 train + 2 test views of a coloured blob), hull and coarse artifacts under ``root``."""
+    """Scene, mask, hull and coarse artifacts (4 train + 2 test views of a coloured blob) in ``root``."""
     import numpy as np
 
     from go_core.gaussians import Gaussians
+    from go_core.masking import save_masks
     from go_core.repair.data import render_rgb_alpha
     from go_core.scene.artifact import save_scene_artifact
     from go_core.scene.types import Scene, View
@@ -106,10 +107,15 @@ def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path
             out.append(View(c, straight.numpy().astype(np.float32), a.numpy().astype(np.float32)))
         return out
 
-    scene = Scene(root / "scene", "nerf", views(_ring("train", [30, 120, 210, 300], 20, size)),
-                  views(_ring("test", [75, 165], 40, size)))
-    dirs = {"scene": root / "scene", "hull": root / "hull", "coarse": root / "coarse"}
+    scene = Scene(
+        root / "scene",
+        "nerf",
+        views(_ring("train", [30, 120, 210, 300], 20, size)),
+        views(_ring("test", [75, 165], 40, size)),
+    )
+    dirs = {"scene": root / "scene", "mask": root / "mask", "hull": root / "hull", "coarse": root / "coarse"}
     save_scene_artifact(scene, dirs["scene"])
+    save_masks(dirs["mask"], [v.mask for v in scene.train])
     hull = Gaussians.from_points(pts * 1.2, torch.full((n, 3), 0.5), torch.full((n,), 0.1), 0.1, 1)
     hull.save(dirs["hull"] / "gaussians.npz")
     coarse = truth.map(lambda t: t.clone())

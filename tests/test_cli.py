@@ -172,3 +172,16 @@ def test_run_example_end_to_end(tmp_path, toy):
     assert done.returncode == 0, done.stderr[-3000:]
     again = toy.cli("run", "--example", "--workdir", str(tmp_path / "ex"))
     assert again.returncode == 0 and "running" not in again.stderr
+
+
+def test_example_scene_is_copied_once(tmp_path):
+    import argparse
+
+    from go_pipeline.commands.run import _example_scene
+
+    args = argparse.Namespace(scene=None, workdir=str(tmp_path / "ex"))
+    scene, _ = _example_scene(args)
+    assert scene == tmp_path / "ex" / "basket"
+    assert sorted(p.name for p in scene.iterdir()) == sorted(p.name for p in example_scene_path().iterdir())
+    (scene / "marker").write_text("kept")
+    assert _example_scene(args)[0] == scene and (scene / "marker").read_text() == "kept"

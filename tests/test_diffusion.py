@@ -108,3 +108,22 @@ def test_repair_runs_floor_50t_ddim_steps(weights):
     assert out.images.shape == render.shape and 0.0 <= out.images.min() and out.images.max() <= 1.0
     again = d.repair(render, 0.3, torch.Generator().manual_seed(1))
     assert torch.equal(out.images, again.images)  # deterministic for a seed
+
+
+def test_sds_gradient_is_weighted_noise_residual(weights):
+    """d(SDS loss)/d(latent) = w(t)·(ε̂ − ε), so the loss value is ½‖w(t)·(ε̂ − ε)‖²."""
+    m = load_repair_models(WeightPaths.resolve(weights, env={}))
+    d = RepairDiffusion(m)
+    img = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(0), requires_grad=True)
+    loss, t = d.sds_loss(img, 0.4, torch.Generator().manual_seed(3))
+    assert t == 400
+    g = torch.Generator().manual_seed(3)
+    with torch.no_grad():
+        z0 = m.vae.encode(img * 2 - 1).latent_dist.mean * d.vae_scale
+        noise = torch.randn(z0.shape, generator=g)
+        tt = torch.tensor([400])
+        eps = d.predict_noise(d.scheduler.add_noise(z0, noise, tt), tt, img, d.text_embeddings())
+        w = 1.0 - float(d.scheduler.alphas_cumprod[400])
+    assert float(loss) == pytest.approx(0.5 * float(((w * (eps - noise)) ** 2).sum()), rel=1e-5)
+    loss.backward()
+    assert img.grad is not None and float(img.grad.abs().sum()) > 0  # flows back through the VAE encoder

@@ -88,3 +88,35 @@ def test_error_map_is_colour_coded():
     em = error_map(pred, gt)
     assert em.dtype == np.uint8 and em.shape == (4, 4, 3)
     assert em[0, 0].astype(int).sum() > em[1, 1].astype(int).sum()
+
+
+def test_compare_command(shared_data, capsys, tmp_path):
+    """`go-pipeline compare` on the LPIPS reference pair: PSNR recomputed here, LPIPS-alex the reference."""
+    import json
+
+    from PIL import Image
+
+    from go_core.metrics.lpips_weights import weights_path
+    from go_pipeline.cli import main
+
+    a, b = shared_data / "lpips_ref" / "ex_ref.png", shared_data / "lpips_ref" / "ex_p1.png"
+    assert main(["compare", str(a), str(b), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    ia, ib = (torch.from_numpy(np.asarray(Image.open(p).convert("RGB"), np.float32) / 255) for p in (a, b))
+    assert res["psnr"] == pytest.approx(psnr(ia, ib), abs=1e-9)
+    if weights_path("alex").exists():
+        assert res["lpips_alex"] == pytest.approx(0.138, abs=0.002)
+    assert main(["compare", str(a), str(b)]) == 0
+    assert "PSNR" in capsys.readouterr().out
+    Image.new("RGB", (10, 12)).save(tmp_path / "small.png")
+    assert main(["compare", str(a), str(tmp_path / "small.png")]) == 2
+    assert "image sizes differ" in capsys.readouterr().err
+
+
+def test_lpips_is_none_for_images_too_small_for_the_backbone():
+    from go_core.metrics.lpips import LPIPS
+
+    suite = MetricSuite(lpips={"vgg": LPIPS("vgg"), "alex": LPIPS("alex")})
+    img = np.random.default_rng(0).random((24, 24, 3)).astype(np.float32)
+    res = suite.evaluate(img, img * 0.5)
+    assert res["lpips_alex"] is None and res["lpips_vgg"] is not None

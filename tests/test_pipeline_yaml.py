@@ -255,6 +255,8 @@ BAD_OVERRIDES = [
     ({"b.n": True}, None, "--set b.n=True: expected int (default 3), got bool"),
     ({"b.rate": "fast"}, None, "--set b.rate='fast': expected float (default 0.5), got str"),
     ({"b.flag": 1}, None, "--set b.flag=1: expected bool (default False), got int"),
+    ({"b.rate": float("nan")}, None, "--set b.rate=nan: must be a finite number"),
+    ({"b.rate": "inf"}, None, "--set b.rate='inf': must be a finite number"),
     ({"b.items": 5}, None, "--set b.items=5: expected list (default [1, 2]), got int"),
     ({"b": 5}, None, "--set b=5: expected STEP.PARAM=VALUE"),
     ({}, "turbo", "unknown profile 'turbo' (profiles: fast, dotted)"),

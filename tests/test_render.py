@@ -21,12 +21,16 @@ def cpu_ext():
     return load_extension()
 
 
+NAMES = ("means", "quats", "scales", "opacities", "sh", "viewmats", "means2d")
+
+
 def _outputs(out) -> torch.Tensor:
     return torch.cat([out.rgb, out.alpha, out.depth], dim=-1)
 
 
 def _rel(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).abs().max() / b.abs().max().clamp_min(1e-30))
+    a, b = a.detach(), b.detach()
+    return float((a - b).abs().max() / b.abs().max().clamp_min(1e-30)) if b.numel() else 0.0
 
 
 def _brute_force(proj, cam: int, width: int, height: int) -> torch.Tensor:
@@ -85,20 +89,41 @@ def test_reference_matches_brute_force():
     assert out.rgb.shape == (2, H, W, 3) and out.alpha.shape == (2, H, W, 1) and out.depth.shape == (2, H, W, 1)
 
 
+def _directional_fd_check(scene, W, H, grads, weights, antialiased=False, seed=0, h=1e-6, rtol=1e-5):
+    """grad·v against a float64 central difference of the reference renderer, for every input."""
+    gen = torch.Generator().manual_seed(seed)
+    for k, name in enumerate(NAMES[:6]):
+        for _ in range(2):
+            direction = torch.randn(scene[k].shape, dtype=torch.float64, generator=gen)
+            if name == "viewmats":
+                direction[:, 3] = 0.0  # the last row of a viewmat is constant
+
+            def f(step):
+                args = list(scene)
+                args[k] = scene[k] + step * direction
+                out = render(*args, W, H, sh_degree=3, backend="reference", antialiased=antialiased)
+                return float((_outputs(out) * weights).sum())
+
+            # a step may cross one of the renderer's discontinuities (a 1/255 cut-off, a tile-rectangle
+            # change); such a step gives a huge difference quotient, so a second, smaller step decides.
+            an = float((grads[k].double() * direction).sum())
+            scale = float((grads[k].double() * direction).abs().sum())  # float32 error is relative to this
+            fds = []
+            for step in (h, h / 7):
+                fds.append((f(step) - f(-step)) / (2 * step))
+                if abs(an - fds[-1]) <= rtol * scale + 1e-6:
+                    break
+            else:
+                raise AssertionError(f"{name}: analytic {an} vs finite differences {fds}")
+
+
 @pytest.mark.parametrize("antialiased", [False, True])
 def test_reference_gradients_match_finite_differences(antialiased):
     W, H = 24, 18
     scene = random_scene(8, W, H, cams=2, scale=0.15, seed=1)
     weights = torch.randn(2, H, W, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
-    Ks = scene[6]
-
-    def f(means, quats, scales, opac, sh, vm):
-        out = render(means, quats, scales, opac, sh, vm, Ks, W, H, sh_degree=3, backend="reference",
-                     antialiased=antialiased)
-        return (_outputs(out) * weights).sum()
-
-    inputs = [t.clone().requires_grad_() for t in scene[:6]]
-    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
+    _, grads = _grads(scene, W, H, "reference", torch.float64, weights, antialiased=antialiased)
+    _directional_fd_check(scene, W, H, grads, weights, antialiased=antialiased)
 
 
 def _grads(scene, W, H, backend, dtype, weights, sh_degree=3, antialiased=False, background=None):
@@ -109,8 +134,6 @@ def _grads(scene, W, H, backend, dtype, weights, sh_degree=3, antialiased=False,
     (_outputs(out) * weights.to(dtype)).sum().backward()
     return out, [t.grad for t in inputs] + [out.means2d.grad]
 
-
-NAMES = ("means", "quats", "scales", "opacities", "sh", "viewmats", "means2d")
 
 
 @pytest.mark.parametrize("antialiased", [False, True])
@@ -124,7 +147,7 @@ def test_cpu_matches_float64_reference(cpu_ext, antialiased):
         assert _rel(getattr(cpu, k).double(), getattr(ref, k)) <= 1e-5, k
     assert torch.equal(cpu.radii, ref.radii)
     for name, a, b in zip(NAMES, gcpu, gref):
-        assert _rel(a.double(), b) <= 2e-4, name
+        assert _rel(a.double(), b) <= 2e-5, name
 
 
 def test_cpu_directional_derivative_matches_finite_differences(cpu_ext):
@@ -133,22 +156,7 @@ def test_cpu_directional_derivative_matches_finite_differences(cpu_ext):
     scene = random_scene(60, W, H, cams=1, seed=5, scale=0.1)
     weights = torch.randn(1, H, W, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
     _, grads = _grads(scene, W, H, "cpu", torch.float32, weights)
-    gen = torch.Generator().manual_seed(7)
-    for k, name in enumerate(NAMES[:6]):
-        direction = torch.randn(scene[k].shape, dtype=torch.float64, generator=gen)
-        if name == "viewmats":
-            direction[:, 3] = 0.0  # the last row of a viewmat is constant
-
-        def f(h):
-            args = list(scene)
-            args[k] = scene[k] + h * direction
-            out = render(*args, W, H, sh_degree=3, backend="reference")
-            return float((_outputs(out) * weights).sum())
-
-        h = 1e-6
-        fd = (f(h) - f(-h)) / (2 * h)
-        an = float((grads[k].double() * direction).sum())
-        assert abs(an - fd) <= 2e-4 * abs(fd) + 1e-6, (name, an, fd)
+    _directional_fd_check(scene, W, H, grads, weights, seed=7, rtol=2e-4)
 
 
 @pytest.mark.parametrize("deg", [0, 1, 2])
@@ -159,13 +167,13 @@ def test_cpu_lower_sh_degrees_and_rgb_colors(cpu_ext, deg):
     ref, gref = _grads(scene, W, H, "reference", torch.float64, weights, sh_degree=deg)
     cpu, gcpu = _grads(scene, W, H, "cpu", torch.float32, weights, sh_degree=deg)
     assert _rel(cpu.rgb.double(), ref.rgb) <= 1e-5
-    assert _rel(gcpu[4].double(), gref[4]) <= 2e-4
+    assert _rel(gcpu[4].double(), gref[4]) <= 2e-5
     assert float(gcpu[4][:, (deg + 1) ** 2:].abs().max()) == 0.0  # unused coefficients get no gradient
     rgb_scene = list(scene)
     rgb_scene[4] = torch.rand(80, 3, dtype=torch.float64)
     ref2, g2 = _grads(rgb_scene, W, H, "reference", torch.float64, weights, sh_degree=None)
     cpu2, c2 = _grads(rgb_scene, W, H, "cpu", torch.float32, weights, sh_degree=None)
-    assert _rel(cpu2.rgb.double(), ref2.rgb) <= 1e-5 and _rel(c2[4].double(), g2[4]) <= 2e-4
+    assert _rel(cpu2.rgb.double(), ref2.rgb) <= 1e-5 and _rel(c2[4].double(), g2[4]) <= 2e-5
 
 
 def test_background_and_expected_depth(cpu_ext):

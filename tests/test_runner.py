@@ -237,3 +237,21 @@ def test_missing_scene_folder(tmp_path, toy):
     with pytest.raises(GoError) as info:
         run_pipeline(tmp_path / "nope", pipeline_path=toy.pipeline)
     assert str(info.value) == f"{tmp_path / 'nope'}: scene folder not found"
+
+
+def test_unwritable_workdir_and_damaged_artifact(toy, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    with pytest.raises(GoError) as info:
+        run(toy, workdir=blocker / "w")
+    assert (
+        str(info.value)
+        == f"{blocker / 'w'}: cannot write the work dir (Not a directory); choose one with --workdir"
+    )
+    first = run(toy)
+    (first.step("double").artifact_dir / "doubled.json").unlink()  # a damaged cache entry is rebuilt
+    assert states(toy)["double"] == ("stale", "artifact damaged (a declared output is missing)")
+    again = run(toy)
+    assert again.ran == ["double"] and content_hashes(toy.scene / ".go") == {
+        s.name: store.load_manifest(s.artifact_dir)["content_hash"] for s in first.steps
+    }

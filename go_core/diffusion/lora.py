@@ -42,11 +42,18 @@ def _config(spec: LoraSpec, targets: str):
     )
 
 
-def add_lora(models: RepairModels, spec: LoraSpec) -> dict[str, int]:
+def add_lora(models: RepairModels, spec: LoraSpec, seed: int = 0) -> dict[str, int]:
     """Freeze every base weight and inject LoRA adapters; returns the number of LoRA parameters per part.
 
-    LoRA's B matrices start at zero, so the model's outputs are unchanged until training moves them.
+    LoRA's B matrices start at zero, so the model's outputs are unchanged until training moves them; the A
+    matrices are drawn from ``seed`` (the global torch RNG is left as it was).
     """
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(int(seed))
+        return _inject(models, spec)
+
+
+def _inject(models: RepairModels, spec: LoraSpec) -> dict[str, int]:
     from peft import inject_adapter_in_model
 
     counts: dict[str, int] = {}

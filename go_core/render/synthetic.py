@@ -39,3 +39,26 @@ def random_scene(n: int, width: int, height: int, *, cams: int = 1, sh_degree: i
         f = 1.1 * max(width, height)
         Ks.append(torch.tensor([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=dtype))
     return means, quats, scales, opac, sh, torch.stack(vms), torch.stack(Ks)
+
+
+def benchmark_scene(n: int, size: int, *, seed: int = 0, sigma_px: tuple[float, float] = (1.0, 8.0),
+                    sh_degree: int = 3, dtype=torch.float32):
+    """A realistic load: n Gaussians in a unit ball seen from 3 units away by one size x size camera.
+
+    Screen-space standard deviations are log-uniform in ``sigma_px`` (pixels), anisotropy up to ~3:1,
+    opacities in [0.05, 1), so tiles hold a few hundred to a few thousand Gaussians, as in training.
+    """
+    g = torch.Generator().manual_seed(seed)
+    f = 1.2 * size
+    dist = 3.0
+    d = torch.randn(n, 3, generator=g, dtype=torch.float64)
+    means = d / d.norm(dim=-1, keepdim=True) * torch.rand(n, 1, generator=g, dtype=torch.float64) ** (1 / 3)
+    lo, hi = torch.log(torch.tensor(sigma_px, dtype=torch.float64))
+    sig = torch.exp(lo + (hi - lo) * torch.rand(n, 1, generator=g, dtype=torch.float64)) * dist / f
+    scales = sig * torch.exp(torch.rand(n, 3, generator=g, dtype=torch.float64) * 1.1 - 0.55)
+    quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
+    opac = torch.rand(n, generator=g, dtype=torch.float64) * 0.95 + 0.05
+    sh = torch.randn(n, (sh_degree + 1) ** 2, 3, generator=g, dtype=torch.float64) * 0.2
+    vm = look_at_viewmat([0.0, 0.0, -dist], [0.0, 0.0, 0.0])[None]
+    K = torch.tensor([[[f, 0, size / 2], [0, f, size / 2], [0, 0, 1]]], dtype=torch.float64)
+    return tuple(t.to(dtype) for t in (means, quats, scales, opac, sh, vm, K))

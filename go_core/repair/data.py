@@ -17,44 +17,22 @@ from go_core.errors import SceneError
 from go_core.gaussians import Gaussians
 
 
-def _mask_from_npz(data, name: str, index: int, shape: tuple[int, int]) -> np.ndarray | None:
-    for key in (name, f"train_{index:03d}", f"train_{index:03d}_mask", f"mask_{index}", f"{index}"):
-        if key in data.files:
-            m = np.asarray(data[key])
-            m = m.astype(np.float32) / 255.0 if m.dtype == np.uint8 else m.astype(np.float32)
-            return m.reshape(shape)
-    if "masks" in data.files:  # a stacked [N, H, W] array in training-view order
-        stacked = np.asarray(data["masks"])
-        if stacked.ndim == 3 and index < len(stacked) and stacked.shape[1:] == shape:
-            m = stacked[index]
-            return m.astype(np.float32) / 255.0 if m.dtype == np.uint8 else m.astype(np.float32)
-    return None
-
-
 def training_views(scene_dir: str | Path, mask_dir: str | Path | None = None):
-    """(scene, [TrainView]) for the scene artifact's training views, each with a mask."""
+    """(scene, [TrainView]) for the scene artifact's training views, each with its mask: the ``mask`` step's
+    ``masks.npz`` when ``mask_dir`` is given, else the scene's own masks."""
+    from go_core.masking import load_masks
     from go_core.scene.artifact import load_scene_artifact
     from go_core.training import TrainView
 
     scene = load_scene_artifact(scene_dir)
-    masks_path = Path(mask_dir) / "masks.npz" if mask_dir is not None else None
-    data = np.load(masks_path) if masks_path is not None and masks_path.is_file() else None
+    masks = load_masks(mask_dir, len(scene.train)) if mask_dir is not None else [v.mask for v in scene.train]
     views = []
-    try:
-        for i, v in enumerate(scene.train):
-            h, w = v.image.shape[:2]
-            mask = _mask_from_npz(data, v.name, i, (h, w)) if data is not None else None
-            if mask is None:
-                mask = v.mask
-            if mask is None:
-                raise SceneError(
-                    f"training view {v.name!r} has no mask (neither masks.npz nor the scene)",
-                    masks_path or scene_dir,
-                )
-            views.append(TrainView.from_arrays(v.camera, v.image, mask))
-    finally:
-        if data is not None:
-            data.close()
+    for v, mask in zip(scene.train, masks, strict=True):
+        if mask is None:
+            raise SceneError(f"training view {v.name!r} has no mask (run the mask step)", scene_dir)
+        if mask.shape != v.image.shape[:2]:
+            raise SceneError(f"mask of {v.name!r} is {mask.shape}, image {v.image.shape[:2]}", mask_dir)
+        views.append(TrainView.from_arrays(v.camera, v.image, mask))
     return scene, views
 
 

@@ -33,6 +33,7 @@ class LooSettings:
     checkpoint_every: int = 500
     sh_degree: int = 2
     backend: str = "auto"
+    coarse_config: dict | None = None  # the coarse step's CoarseConfig (coarse.json "config"); None: defaults
 
 
 @dataclass
@@ -72,8 +73,12 @@ def run_one(
     left = views[index]
     others = [v for i, v in enumerate(views) if i != index]
     gen = torch.Generator().manual_seed(int(seed) * 1000 + index)
-    cfg1 = CoarseConfig(
-        iterations=settings.phase1_iterations, sh_degree=settings.sh_degree, backend=settings.backend
+    base = CoarseConfig.from_dict(settings.coarse_config) if settings.coarse_config else CoarseConfig()
+    cfg1 = replace(
+        base,
+        iterations=settings.phase1_iterations,
+        sh_degree=settings.sh_degree,
+        backend=settings.backend if settings.backend != "auto" else base.backend,
     )
     before_path = run_dir / "before.npz"
     info: dict = {"index": index, "name": left.camera.name}

@@ -36,6 +36,7 @@ from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_dec
 class RepairSettings:
     iterations: int = 4000
     repair_iterations: int = 2800  # reference + repaired views; reference only afterwards
+    loss: str = "lrep"  # "lrep" (paper) | "sds" (ablation: score distillation instead of repaired images)
     refresh_every: int = 200
     views_per_arc: int = 2
     keep: float = 0.8  # middle fraction of each arc that is sampled
@@ -217,6 +218,8 @@ def repair_gaussians(
     def extra(step: int, g: Gaussians, out, view, index: int):
         if step > settings.repair_iterations:
             return None
+        if settings.loss == "sds":
+            return sds(step, g)
         cache.ensure((step - 1) // max(settings.refresh_every, 1), g.detach())
         pick = np.random.default_rng([seed, 7, step]).integers(len(cache.views))
         cv = cache.views[int(pick)]
@@ -237,6 +240,24 @@ def repair_gaussians(
                 }
             )
         return loss
+
+    def sds(step: int, g: Gaussians) -> torch.Tensor:
+        """Score distillation on one novel view of the repair paths (same λ(π) and decay as L_rep)."""
+        rng = np.random.default_rng([int(seed), 11, step])
+        gen = torch.Generator().manual_seed(int(seed) * 1_000_003 + step)
+        views = arcs.sample(rng, 1, name_prefix=f"sds_{step}")
+        rv = views[int(rng.integers(len(views)))]
+        rgb, alpha = render_differentiable(g, rv.camera, 1.0, settings.backend, sh)
+        frame = Frame.choose(rv.camera.height, rv.camera.width, alpha.detach())
+        square = frame.to_square(hwc_to_bchw(rgb), settings.resolution).to(diffusion.device)
+        loss_sds, t = diffusion.sds_loss(square, float(rng.uniform(*settings.t_range)), gen)
+        lam = distance_weight(rv.camera.center, cache.refs, cache.d_max)
+        weight = lrep_decay(step - 1, settings.repair_iterations, settings.lrep_start, settings.lrep_end)
+        if step % 100 == 0:
+            log.append(
+                {"step": step, "sds": round(float(loss_sds.detach()), 6), "lambda": round(lam, 4), "t": t}
+            )
+        return (weight * lam * loss_sds).cpu()
 
     config = CoarseConfig(
         iterations=settings.iterations,

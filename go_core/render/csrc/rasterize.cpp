@@ -23,7 +23,7 @@ constexpr int NPIX = TILE * TILE;
 constexpr float ALPHA_MIN = 1.0f / 255.0f;
 constexpr float ALPHA_MAX = 0.99f;
 constexpr float T_STOP = 1e-4f;
-constexpr int NP = 12;   // packed floats per Gaussian: mx my a b c o f0 f1 f2 f3 log(255 o) det/a
+constexpr int NP = 16;   // packed floats per Gaussian: mx my a b c o f0..f3 log(255 o) det/a b/a 1/a (pad)
 constexpr int NG = 10;   // gradient floats per (tile, Gaussian): dmx dmy da db dc do df0..df3
 
 // exp(x) for x <= 0 (clamped below at -87): Cody-Waite range reduction and the Cephes degree-6 polynomial,
@@ -86,12 +86,18 @@ static inline Rect tile_rect(float mx, float my, int32_t radius, int tiles_x, in
           clampi(std::floor((my - r) / TILE), tiles_y), clampi(std::ceil((my + r) / TILE), tiles_y)};
 }
 
-// Conservative test that no pixel of a tile row can reach alpha >= 1/255: the minimum over x of
-// sigma(x, y) is 0.5 dy² det/a; `margin` covers the float rounding of the per-pixel evaluation.
-static inline bool row_may_hit(const float* g, float dy) {
-  const float cdy2 = g[4] * dy * dy;
-  const float sig_min = 0.5f * dy * dy * g[11];
-  return sig_min <= g[10] + 1e-2f + 1e-5f * cdy2;
+// Conservative test whether a pixel of the 16-pixel tile row at offset dy = my - y (pixel centres x0+0.5 ..
+// x0+15.5) can reach alpha >= 1/255, i.e. sigma <= log(255 o). Along the row sigma(dx) is a parabola; its
+// sub-threshold interval of pixel x is centre mx + (b/a) dy, half-width sqrt((2 thr - dy² det/a) / a).
+// The margins cover the float rounding of the per-pixel evaluation, so skipping never changes a result.
+static inline bool row_may_hit(const float* g, float dy, float x0) {
+  const float dy2 = dy * dy;
+  const float thr = g[10] + 1e-2f + 1e-5f * g[4] * dy2;
+  const float q = 2.0f * thr - g[11] * dy2;
+  if (!(q >= 0.0f)) return false;
+  const float hw = std::sqrt(q * g[13]) * 1.0001f + 0.01f;
+  const float cx = g[0] + g[12] * dy;
+  return (cx + hw >= x0 + 0.5f) && (cx - hw <= x0 + (TILE - 0.5f));
 }
 
 template <typename F>
@@ -140,7 +146,11 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
       const double det = double(g[2]) * g[4] - double(g[3]) * g[3];
       // log(255 o): sigma above it gives alpha < 1/255; negative flags Gaussians that never reach 1/255
       g[10] = g[5] >= ALPHA_MIN ? std::max(0.0f, std::log(g[5] * 255.0f)) : -1.0f;
-      g[11] = (g[2] > 0.0f && det > 0.0) ? static_cast<float>(det / g[2]) : 0.0f;
+      const bool pd = g[2] > 0.0f && det > 0.0;
+      g[11] = pd ? static_cast<float>(det / g[2]) : 0.0f;
+      g[12] = pd ? g[3] / g[2] : 0.0f;
+      g[13] = pd ? 1.0f / g[2] : 1e30f;
+      g[14] = g[15] = 0.0f;
       Rect r{0, 0, 0, 0};
       if (rad[i] > 0 && g[10] >= 0.0f) r = tile_rect(g[0], g[1], rad[i], tiles_x, tiles_y);
       rects[i] = r;
@@ -235,7 +245,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
     const int x0 = tx * TILE, y0 = ty * TILE;
     const int64_t start = toff[tile];
     const int32_t L = static_cast<int32_t>(toff[tile + 1] - start);
-    alignas(64) float Tr[NPIX], a0[NPIX], a1[NPIX], a2[NPIX], a3[NPIX], act[NPIX];
+    alignas(64) float Tr[NPIX], a0[NPIX], a1[NPIX], a2[NPIX], a3[NPIX], aw[NPIX], act[NPIX];
     alignas(64) int32_t st[NPIX];
     bool row_alive[TILE];
     int alive = 0;
@@ -245,7 +255,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
       for (int k = 0; k < TILE; ++k) {
         const int p = r * TILE + k;
         Tr[p] = 1.0f;
-        a0[p] = a1[p] = a2[p] = a3[p] = 0.0f;
+        a0[p] = a1[p] = a2[p] = a3[p] = aw[p] = 0.0f;
         act[p] = (row_alive[r] && x0 + k < width) ? 1.0f : 0.0f;
         st[p] = L;
       }
@@ -260,10 +270,11 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
       for (int r = 0; r < TILE; ++r) {
         if (!row_alive[r]) continue;
         const float dy = my - (y0 + r + 0.5f);
-        if (!row_may_hit(g, dy)) continue;
+        if (!row_may_hit(g, dy, float(x0))) continue;
         const float cdy2 = cc * dy * dy, bdy = cb * dy;
         float* T_ = Tr + r * TILE;
         float *A0 = a0 + r * TILE, *A1 = a1 + r * TILE, *A2 = a2 + r * TILE, *A3 = a3 + r * TILE;
+        float* AW = aw + r * TILE;
         float* AC = act + r * TILE;
         int32_t* ST = st + r * TILE;
         float any = 0.0f;
@@ -282,6 +293,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
           A1[k] += w * f1;
           A2[k] += w * f2;
           A3[k] += w * f3;
+          AW[k] += w;  // alpha as the sum of weights: no cancellation in 1 - T
           T_[k] = contrib ? nt : t;
           ST[k] = halt ? i : ST[k];
           const float a_new = halt ? 0.0f : AC[k];
@@ -302,7 +314,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
         po[4 * pix + 1] = a1[p];
         po[4 * pix + 2] = a2[p];
         po[4 * pix + 3] = a3[p];
-        pa[pix] = 1.0f - Tr[p];
+        pa[pix] = aw[p];
         pt[pix] = Tr[p];
         ps[pix] = st[p];
       }
@@ -374,7 +386,7 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
       for (int r = 0; r < TILE; ++r) {
         if (i >= row_max[r]) continue;
         const float dy = my - (y0 + r + 0.5f);
-        if (!row_may_hit(g, dy)) continue;
+        if (!row_may_hit(g, dy, float(x0))) continue;
         const float cdy2 = cc * dy * dy, bdy = cb * dy;
         const int off = r * TILE;
 #pragma omp simd reduction(+ : s_mx, s_my, s_a, s_b, s_c, s_o, s_f0, s_f1, s_f2, s_f3)
@@ -453,9 +465,23 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
   return {g_m, g_c, g_f, g_o};
 }
 
+// project.cpp
+std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
+                                           torch::Tensor opacities, torch::Tensor colors, torch::Tensor viewmats,
+                                           torch::Tensor Ks, int64_t width, int64_t height, double near,
+                                           double far, double eps2d, bool antialiased, int64_t sh_degree);
+std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
+                                            torch::Tensor opacities, torch::Tensor colors, torch::Tensor viewmats,
+                                            torch::Tensor Ks, int64_t width, int64_t height, double near,
+                                            double far, double eps2d, bool antialiased, int64_t sh_degree,
+                                            torch::Tensor g_means2d, torch::Tensor g_conics, torch::Tensor g_colors,
+                                            torch::Tensor g_opac, torch::Tensor g_depths);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "go-pipeline CPU Gaussian rasterizer";
   m.def("bin_and_pack", &bin_and_pack, "tile binning and parameter packing");
   m.def("rasterize_forward", &rasterize_forward, "forward compositing");
   m.def("rasterize_backward", &rasterize_backward, "backward of the compositing");
+  m.def("project_forward", &project_forward, "EWA projection and SH colours");
+  m.def("project_backward", &project_backward, "backward of the projection");
 }

@@ -1,0 +1,164 @@
+"""The run report of one scene: what ran, how long it took, how good the result is.
+
+Built only from what is on disk (the step manifests of the work dir, the eval artifact's metrics.json,
+runs/last.json), so a report can be produced any time after a run, also for a partial run. Keys are stable
+and described by ``data_schema/run_report.schema.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from go_pipeline import store
+
+REPORT_SCHEMA_ID = "go-pipeline/run-report"
+REPORT_VERSION = 1
+METRIC_KEYS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "lpips_star")
+
+
+def schema_path() -> Path:
+    """The JSON Schema of the report (packaged data_schema/)."""
+    from go_pipeline.resources import schema_path as packaged
+
+    return packaged("run_report")
+
+
+def validate_report(report: dict) -> None:
+    """Raise jsonschema.ValidationError when ``report`` does not follow the schema."""
+    import jsonschema
+
+    jsonschema.validate(report, json.loads(schema_path().read_text()))
+
+
+def _step_order(workdir: Path, manifests: dict[str, dict], pipeline_path: str | Path | None) -> list[str]:
+    try:
+        from go_pipeline.pipeline import load_pipeline
+
+        order = [s for s in load_pipeline(pipeline_path).order if s in manifests]
+        return order + sorted(s for s in manifests if s not in order)
+    except Exception:  # noqa: BLE001 - a report of foreign artifacts still lists them, by start time
+        return sorted(manifests, key=lambda s: manifests[s].get("started", ""))
+
+
+def _last_run(workdir: Path) -> dict[str, Any]:
+    path = workdir / "runs" / "last.json"
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def _result(manifests: dict[str, dict], metrics: dict | None) -> dict[str, Any]:
+    """Which model the result is (repair / coarse) and why."""
+    repair = manifests.get("repair")
+    repair_record = (repair or {}).get("record", {})
+    repair_ran = bool(repair) and repair_record.get("status", "ok") == "ok"
+    if metrics is not None:
+        model, reason = metrics.get("model"), metrics.get("model_reason", "")
+    elif repair_ran:
+        model, reason = "repair", "repair ran"
+    elif "coarse" in manifests:
+        model = "coarse"
+        reason = (
+            f"repair status {repair_record.get('status')!r}: {repair_record.get('reason', 'no reason given')}"
+            if repair
+            else "the repair step has not run"
+        )
+    else:
+        model, reason = None, "no model trained yet"
+    count = None
+    if metrics is not None:
+        count = metrics.get("num_gaussians")
+    if count is None and model in manifests:
+        rec = manifests[model].get("record", {})
+        count = rec.get("num_gaussians", rec.get("gaussians"))
+    return {
+        "model": model,
+        "reason": reason,
+        "repair_ran": repair_ran,
+        "repair_status": repair_record.get("status") if repair else None,
+        "num_gaussians": int(count) if isinstance(count, (int, float)) else None,
+    }
+
+
+def build_report(
+    scene_dir: str | Path, workdir: str | Path | None = None, pipeline_path: str | Path | None = None
+) -> dict[str, Any]:
+    """The run report dict of a scene's work dir (see the schema for the keys)."""
+    scene_dir = Path(scene_dir)
+    wd = store.workdir_for(scene_dir, workdir)
+    manifests = store.current_manifests(wd)
+    last = _last_run(wd)
+    last_status = {s["name"]: s for s in last.get("steps", [])}
+    steps = []
+    for name in _step_order(wd, manifests, pipeline_path):
+        m = manifests[name]
+        rec = m.get("record", {})
+        run_info = last_status.get(name, {})
+        steps.append(
+            {
+                "name": name,
+                "version": m.get("version"),
+                "key": m.get("key"),
+                "status": rec.get("status", "ok"),
+                "reason": rec.get("reason"),
+                "cached_in_last_run": run_info.get("cached") if run_info else None,
+                "wall_s": float(m.get("wall_s", 0.0)),
+                "cpu_s": float(m.get("cpu_s", 0.0)),
+                "peak_mem_mb": float(m.get("peak_mem_mb", 0.0)),
+                "device": m.get("device"),
+                "params": m.get("params", {}),
+                "finished": m.get("finished"),
+                "record": rec,
+            }
+        )
+    metrics = None
+    metrics_dir = store.artifact_dir(wd, "eval") if "eval" in manifests else None
+    if metrics_dir is not None and (metrics_dir / "metrics.json").is_file():
+        metrics = json.loads((metrics_dir / "metrics.json").read_text())
+    devices = sorted({s["device"] for s in steps if s["device"]})
+    libraries: dict[str, str] = {}
+    for name in (s["name"] for s in steps):
+        libraries.update(manifests[name].get("libraries", {}))
+    images = {}
+    if metrics_dir is not None and (metrics_dir / "test_grid.png").is_file():
+        images["test_grid"] = str(metrics_dir / "test_grid.png")
+    return {
+        "schema": REPORT_SCHEMA_ID,
+        "version": REPORT_VERSION,
+        "generated": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "scene": {"name": scene_dir.resolve().name, "path": str(scene_dir)},
+        "workdir": str(wd),
+        "device": devices[0] if len(devices) == 1 else ("+".join(devices) if devices else None),
+        "versions": {"libraries": libraries, "steps": {s["name"]: s["version"] for s in steps}},
+        "last_run": {k: last.get(k) for k in ("profile", "seed", "started", "finished", "wall_s")}
+        if last
+        else None,
+        "steps": steps,
+        "totals": {
+            "wall_s": sum(s["wall_s"] for s in steps),
+            "cpu_s": sum(s["cpu_s"] for s in steps),
+            "peak_mem_mb": max((s["peak_mem_mb"] for s in steps), default=0.0),
+        },
+        "result": _result(manifests, metrics),
+        "metrics": _metrics_block(metrics),
+        "images": images,
+    }
+
+
+def _metrics_block(metrics: dict | None) -> dict[str, Any] | None:
+    if metrics is None:
+        return None
+    mean = metrics.get("mean", {})
+    return {
+        "mean": {k: mean.get(k) for k in METRIC_KEYS},
+        "masked_mean": {k: mean["masked"].get(k) for k in METRIC_KEYS} if "masked" in mean else None,
+        "views": [
+            {"name": v["name"], **{k: v.get(k) for k in METRIC_KEYS}} for v in metrics.get("views", [])
+        ],
+        "lpips_status": metrics.get("lpips_status", {}),
+        "protocol": metrics.get("protocol", {}),
+    }

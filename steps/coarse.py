@@ -1,0 +1,69 @@
+"""coarse: 3DGS optimisation from the hull Gaussians with the paper's structure priors (Sec. 3.3).
+
+Loss 0.8·L1 + 0.2·D-SSIM on random backgrounds + λm·BCE(alpha, mask) + λd·depth (when the depth step
+produced a prior); 3DGS densification (strategy object with a Gaussian budget and pruning of Gaussians that
+contribute nothing) and floater elimination. All settings are step params (pipeline.yaml ``coarse:``); see
+docs/coarse.md for the ablation spellings. Checkpoints go to ``ctx.checkpoint_dir``; a killed run resumes
+and produces a bit-identical ``gaussians.npz``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from go_core.depth_prior import load_depth_priors
+from go_core.gaussians import Gaussians
+from go_core.io.atomic import atomic_write_json
+from go_core.masking import load_masks
+from go_core.scene.artifact import load_scene_artifact
+from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
+
+VERSION = "1"
+
+
+def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    t0 = time.process_time()
+    scene = load_scene_artifact(inputs["scene"])
+    masks = load_masks(inputs["mask"], len(scene.train))
+    init = Gaussians.load(Path(inputs["hull"]) / "gaussians.npz")
+    config = config_from_params(params)
+    depths = load_depth_priors(inputs["depth"]) if "depth" in inputs else None
+    if depths is not None and len(depths) != len(scene.train):
+        depths = None
+    views = [
+        TrainView.from_arrays(v.camera, v.image, m, depths[i] if depths is not None else None)
+        for i, (v, m) in enumerate(zip(scene.train, masks, strict=True))
+    ]
+    generator = torch.Generator().manual_seed(int(ctx.seed))
+    state: dict = {"bar": None}
+
+    def progress(step: int, info: dict) -> None:
+        if state["bar"] is None:
+            state["bar"] = ctx.progress(config.iterations, "coarse 3DGS", completed=step - 1)
+        state["bar"].advance()
+
+    spec = CheckpointSpec(Path(ctx.checkpoint_dir), every=int(params.get("checkpoint_every", 500)))
+    gaussians, stats = optimize(init, views, config, generator=generator, on_progress=progress, checkpoint=spec)
+    if state["bar"] is not None:
+        state["bar"].close()
+    gaussians.save(ctx.out_dir / "gaussians.npz")
+    cpu_s = time.process_time() - t0
+    info = {
+        "gaussians": stats.final_count,
+        "initial_gaussians": stats.initial_count,
+        "max_gaussians_seen": stats.max_count,
+        "floaters_removed": stats.floaters_removed,
+        "densify": stats.densify,
+        "depth_loss": "on" if stats.depth_loss_used else "off (no depth prior)" if depths is None else "off",
+        "iterations": stats.iterations,
+    }
+    # coarse.json stays byte-identical between a resumed and an uninterrupted run: timing goes to the record
+    atomic_write_json(
+        ctx.out_dir / "coarse.json",
+        {**info, "config": asdict(config), "floater_passes": stats.floater_passes, "loss_log": stats.loss_log},
+    )
+    ctx.record(**info, resumed_from=stats.resumed_from, cpu_s_this_process=round(cpu_s, 2))

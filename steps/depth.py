@@ -1,0 +1,36 @@
+"""depth (optional prior): per-view monocular disparity from a LOCAL transformers DPT / Depth-Anything
+checkpoint folder (``model_path``). Without one the step is skipped (recorded: status "skipped" and why),
+writes an empty ``depth.npz`` and the coarse stage runs without the depth loss.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from go_core.depth_prior import DEPTH_JSON, DepthEstimator, save_depth_priors
+from go_core.io.atomic import atomic_write_json
+from go_core.scene.artifact import load_scene_artifact
+
+VERSION = "1"
+
+
+def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    model_path = str(params.get("model_path", "") or "")
+    if not model_path:
+        reason = "no depth model configured (depth.model_path is empty): the depth loss is off"
+        save_depth_priors(ctx.out_dir, [])
+        atomic_write_json(ctx.out_dir / DEPTH_JSON, {"status": "skipped", "reason": reason, "views": 0})
+        ctx.record(status="skipped", reason=reason)
+        return
+    estimator = DepthEstimator(Path(model_path), device="cpu")
+    scene = load_scene_artifact(inputs["scene"])
+    maps = []
+    bar = ctx.progress(len(scene.train), "depth prior")
+    for v in scene.train:
+        maps.append(estimator(v.image))
+        bar.advance()
+    bar.close()
+    save_depth_priors(ctx.out_dir, maps)
+    info = {"status": "ok", "model": estimator.name, "kind": "disparity", "views": len(maps)}
+    atomic_write_json(ctx.out_dir / DEPTH_JSON, info)
+    ctx.record(**info)

@@ -1,0 +1,185 @@
+"""noise_pairs → lora → repair steps end to end with tiny random models; honest skips without weights."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from tests._tiny_repair import FakeCtx, one_thread, synthetic_inputs, tiny_weights
+
+LOO = {"phase1_iterations": 12, "phase2_iterations": 6, "renders": 2, "checkpoint_every": 0}
+LORA = {"rank": 4, "alpha": 4.0, "steps": 6, "resolution": 64, "checkpoint_every": 2}
+REPAIR = {
+    "iterations": 10,
+    "repair_iterations": 8,
+    "refresh_every": 4,
+    "views_per_arc": 2,
+    "num_inference_steps": 10,
+    "resolution": 64,
+    "checkpoint_every": 5,
+    "lpips": 0.0,
+}
+
+
+@pytest.fixture(autouse=True)
+def _threads(monkeypatch):
+    for var in ("GO_SD15_PATH", "GO_CONTROLNET_TILE_PATH", "GO_CLIP_PATH", "GO_SD15_CONFIG"):
+        monkeypatch.delenv(var, raising=False)
+    with one_thread():
+        yield
+
+
+@pytest.fixture(scope="module")
+def upstream(tmp_path_factory):
+    """Inputs, loo and noise_pairs artifacts, and tiny weights."""
+    from steps import loo, noise_pairs
+
+    root = tmp_path_factory.mktemp("repair_steps")
+    with one_thread():
+        dirs = synthetic_inputs(root)
+        ctx = FakeCtx(root, "loo")
+        loo.run(ctx, dirs, LOO)
+        dirs["loo"] = ctx.out_dir
+        ctx = FakeCtx(root, "noise_pairs")
+        noise_pairs.run(ctx, dirs, {"preview_size": 32})
+        dirs["noise_pairs"] = ctx.out_dir
+        weights = tiny_weights(root / "weights")
+    return root, dirs, weights
+
+
+def _lora(root, dirs, params, name="lora"):
+    from steps import lora
+
+    ctx = FakeCtx(root, name)
+    lora.run(ctx, dirs, params)
+    return ctx
+
+
+def test_noise_pairs_step_fixes_config(upstream):
+    _, dirs, _ = upstream
+    cfg = json.loads((dirs["noise_pairs"] / "noise_pairs.json").read_text())
+    loo = json.loads((dirs["loo"] / "loo.json").read_text())
+    assert cfg["stats"] == loo["stats"] and cfg["p0"] == 1.0 and cfg["decay"] == 0.995
+    assert cfg["attributes"] == ["means", "log_scales", "quats", "opacity_logits"]
+    assert (dirs["noise_pairs"] / "preview.png").is_file()
+
+
+def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_path):
+    from steps import repair
+    from steps._common import final_model_path
+
+    _, dirs, _ = upstream
+    ctx = _lora(tmp_path, dirs, {})
+    info = json.loads((ctx.out_dir / "lora.json").read_text())
+    assert info["status"] == "skipped" and ctx.records["status"] == "skipped"
+    assert "Stable Diffusion 1.5" in info["reason"] and "GO_SD15_PATH" in info["reason"]
+    assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["lora.json"]
+    rctx = FakeCtx(tmp_path, "repair")
+    repair.run(rctx, {**dirs, "lora": ctx.out_dir}, REPAIR)
+    rinfo = json.loads((rctx.out_dir / "repair.json").read_text())
+    assert rinfo["status"] == "skipped" and "Stable Diffusion 1.5" in rinfo["reason"]
+    assert not (rctx.out_dir / "gaussians.npz").exists()
+    path, used = final_model_path({"coarse": dirs["coarse"], "repair": rctx.out_dir})
+    assert used == "coarse" and path == dirs["coarse"] / "gaussians.npz"
+
+
+def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monkeypatch):
+    from go_core.diffusion.lora import read_lora
+    from go_core.repair import tuning
+
+    root, dirs, weights = upstream
+    params = {**weights, **LORA}
+    full = _lora(tmp_path / "a", dirs, params)
+    saved = []
+    original = tuning._save
+
+    def save_then_die(directory, payload, keep=2):
+        original(directory, payload, keep)
+        saved.append(payload["step"])
+        if payload["step"] == 4:
+            raise KeyboardInterrupt("simulated kill after the step-4 checkpoint")
+
+    monkeypatch.setattr(tuning, "_save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        _lora(tmp_path / "b", dirs, params)
+    assert saved == [2, 4]
+    monkeypatch.setattr(tuning, "_save", original)
+    resumed = _lora(tmp_path / "b", dirs, params)
+    assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
+    _, a = read_lora(full.out_dir / "lora.safetensors")
+    _, b = read_lora(resumed.out_dir / "lora.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert (full.out_dir / "lora.json").read_bytes() == (resumed.out_dir / "lora.json").read_bytes()
+    info = json.loads((full.out_dir / "lora.json").read_text())
+    assert info["status"] == "ok" and info["pairs_used"]["noise"] + info["pairs_used"]["loo"] == 6
+    assert any(float(v.abs().max()) > 0 for k, v in a.items() if "lora_B" in k)  # LoRA moved from zero
+
+
+def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
+    from go_core.diffusion.configs import SD15_SCHEDULER
+    from go_core.repair.arcs import RepairArcs
+    from go_core.scene.artifact import load_scene_artifact
+    from steps import repair
+    from steps._common import final_model_path
+
+    _, dirs, weights = upstream
+    lctx = _lora(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})
+    ctx = FakeCtx(tmp_path, "repair")
+    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, REPAIR)
+    info = json.loads((ctx.out_dir / "repair.json").read_text())
+    assert info["status"] == "ok" and info["lora"] == "fine-tuned" and info["lpips_term"] == "off (weight 0)"
+    assert info["refreshes"] == 2 and ctx.records["refreshes_made"] == 2
+    path, used = final_model_path({"coarse": dirs["coarse"], "repair": ctx.out_dir})
+    assert used == "repair" and path.is_file()
+
+    scene = load_scene_artifact(dirs["scene"])
+    arcs = RepairArcs.from_cameras(scene.train_cameras, keep=0.8)
+    test_centres = np.stack([c.center for c in scene.test_cameras])
+    refs = np.stack([c.center for c in arcs.references])
+    d = np.linalg.norm(refs - np.roll(refs, -1, axis=0), axis=1).max()
+    betas = np.linspace(np.sqrt(SD15_SCHEDULER["beta_start"]), np.sqrt(SD15_SCHEDULER["beta_end"]), 1000) ** 2
+    alpha_bar = np.cumprod(1 - betas)
+    files = sorted((ctx.checkpoint_dir / "refresh").glob("refresh_*.pt"))
+    assert len(files) == 2
+    for f in files:
+        views = torch.load(f, weights_only=False)
+        assert len(views) == 4 * 2  # two per repair path
+        for v in views:
+            w2c = np.array(v["camera"]["world_to_cam"])
+            centre = -w2c[:3, :3].T @ w2c[:3, 3]
+            theta = float(arcs.ellipse.angle_of(centre)[0])
+            arc, frac = arcs.arc_position(theta)
+            assert arc == v["arc"] and 0.1 - 1e-9 <= frac <= 0.9 + 1e-9
+            assert np.linalg.norm(arcs.ellipse.point(theta) - centre) < 1e-6
+            assert np.linalg.norm(test_centres - centre, axis=1).min() > 1e-3  # never a test camera
+            assert v["lam"] == pytest.approx(2 * np.linalg.norm(refs - centre, axis=1).min() / d)
+            assert v["w"] == pytest.approx(1 - alpha_bar[v["timestep"]], rel=1e-5)
+            assert (v["timestep"] - 1) % 100 == 0  # a DDIM timestep of the 10-step schedule (901 ... 1)
+    assert (ctx.out_dir / "repair_preview.png").is_file()
+
+
+def test_ablations_no_finetune_and_no_repair(upstream, tmp_path):
+    from steps import repair
+
+    _, dirs, weights = upstream
+    lctx = _lora(tmp_path, dirs, {**weights, **LORA, "finetune": False})
+    linfo = json.loads((lctx.out_dir / "lora.json").read_text())
+    assert linfo["status"] == "pretrained" and not (lctx.out_dir / "lora.safetensors").exists()
+    ctx = FakeCtx(tmp_path, "repair")
+    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, {**REPAIR, "iterations": 3, "repair_iterations": 2})
+    assert json.loads((ctx.out_dir / "repair.json").read_text())["lora"] == "pretrained (no fine-tuning)"
+    ctx = FakeCtx(tmp_path, "repair_sds")
+    repair.run(
+        ctx,
+        {**dirs, "lora": lctx.out_dir},
+        {**REPAIR, "iterations": 3, "repair_iterations": 2, "loss": "sds"},
+    )
+    assert json.loads((ctx.out_dir / "repair.json").read_text())["loss"] == "sds"
+    ctx = FakeCtx(tmp_path, "repair_none")
+    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, {**REPAIR, "mode": "no_repair"})
+    info = json.loads((ctx.out_dir / "repair.json").read_text())
+    assert info["status"] == "skipped" and "no repair" in info["reason"]
+    assert not (ctx.out_dir / "gaussians.npz").exists()
