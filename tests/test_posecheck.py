@@ -121,6 +121,7 @@ def _orbit(az: float) -> np.ndarray:
     return cam.opengl_c2w
 
 
+@pytest.mark.slow
 def test_estimate_poses_with_sfm(shared_data):
     scene = load_scene(shared_data / "dev" / "alphabet_soup")
     views = scene.train + scene.test

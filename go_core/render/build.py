@@ -18,7 +18,7 @@ from pathlib import Path
 
 CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = ("rasterize.cpp", "project.cpp")
-CFLAGS = ("-O3", "-march=native", "-fopenmp", "-std=c++17", "-fno-math-errno")
+CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 
 

@@ -102,6 +102,12 @@ def rasterize_reference(
     feats_out, alphas_out = [], []
     for ci in range(C):
         bins = bin_gaussians(means2d[ci], depths[ci], radii[ci], width, height)
+        if bins.gauss_ids.numel() == 0:  # nothing visible: zeros, still connected to the graph
+            link = sum(t[ci].sum() for t in (means2d, conics, feats, opacities)) * 0
+            img = means2d.new_zeros(height, width, F + 1) + link
+            feats_out.append(img[..., :F])
+            alphas_out.append(img[..., F:])
+            continue
         offsets = bins.offsets.tolist()
         counts = [offsets[i + 1] - offsets[i] for i in range(len(offsets) - 1)]
         parts = []
@@ -114,7 +120,7 @@ def rasterize_reference(
             ar = torch.arange(L, dtype=torch.int64)
             gvalid = ar[None, :] < n[:, None]
             pos = torch.where(gvalid, start[:, None] + ar[None, :], torch.zeros_like(gvalid, dtype=torch.int64))
-            gidx = bins.gauss_ids[pos] if bins.gauss_ids.numel() else torch.zeros_like(pos)
+            gidx = bins.gauss_ids[pos]
             gidx = torch.where(gvalid, gidx, torch.zeros_like(gidx))
             px0 = (tiles % bins.tiles_x) * TILE
             py = (tiles // bins.tiles_x) * TILE + rows

@@ -90,14 +90,19 @@ static inline Rect tile_rect(float mx, float my, int32_t radius, int tiles_x, in
 // x0+15.5) can reach alpha >= 1/255, i.e. sigma <= log(255 o). Along the row sigma(dx) is a parabola; its
 // sub-threshold interval of pixel x is centre mx + (b/a) dy, half-width sqrt((2 thr - dy² det/a) / a).
 // The margins cover the float rounding of the per-pixel evaluation, so skipping never changes a result.
-static inline bool row_may_hit(const float* g, float dy, float x0) {
-  const float dy2 = dy * dy;
-  const float thr = g[10] + 1e-2f + 1e-5f * g[4] * dy2;
-  const float q = 2.0f * thr - g[11] * dy2;
-  if (!(q >= 0.0f)) return false;
-  const float hw = std::sqrt(q * g[13]) * 1.0001f + 0.01f;
-  const float cx = g[0] + g[12] * dy;
-  return (cx + hw >= x0 + 0.5f) && (cx - hw <= x0 + (TILE - 0.5f));
+// Evaluated for the 16 rows of a tile at once (one SIMD loop); hit[r] = 1 where row r may be touched.
+static inline void rows_may_hit(const float* g, float x0, float y0, int32_t* hit) {
+  const float mx = g[0], my = g[1], cc = g[4], lthr = g[10], det_a = g[11], b_a = g[12], inv_a = g[13];
+#pragma omp simd
+  for (int r = 0; r < TILE; ++r) {
+    const float dy = my - (y0 + float(r) + 0.5f);
+    const float dy2 = dy * dy;
+    const float thr = lthr + 1e-2f + 1e-5f * cc * dy2;
+    const float q = 2.0f * thr - det_a * dy2;
+    const float hw = std::sqrt(std::max(q, 0.0f) * inv_a) * 1.0001f + 0.01f;
+    const float cx = mx + b_a * dy;
+    hit[r] = (q >= 0.0f) & (cx + hw >= x0 + 0.5f) & (cx - hw <= x0 + (TILE - 0.5f));
+  }
 }
 
 template <typename F>
@@ -267,10 +272,11 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
       const float mx = g[0], my = g[1], ca = g[2], cb = g[3], cc = g[4], o = g[5];
       const float f0 = g[6], f1 = g[7], f2 = g[8], f3 = g[9];
       const float dx0 = mx - (x0 + 0.5f);
+      alignas(64) int32_t hit[TILE];
+      rows_may_hit(g, float(x0), float(y0), hit);
       for (int r = 0; r < TILE; ++r) {
-        if (!row_alive[r]) continue;
+        if (!(row_alive[r] & (hit[r] != 0))) continue;
         const float dy = my - (y0 + r + 0.5f);
-        if (!row_may_hit(g, dy, float(x0))) continue;
         const float cdy2 = cc * dy * dy, bdy = cb * dy;
         float* T_ = Tr + r * TILE;
         float *A0 = a0 + r * TILE, *A1 = a1 + r * TILE, *A2 = a2 + r * TILE, *A3 = a3 + r * TILE;
@@ -383,10 +389,11 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
       const float f0 = g[6], f1 = g[7], f2 = g[8], f3 = g[9];
       const float dx0 = mx - (x0 + 0.5f);
       float s_mx = 0, s_my = 0, s_a = 0, s_b = 0, s_c = 0, s_o = 0, s_f0 = 0, s_f1 = 0, s_f2 = 0, s_f3 = 0;
+      alignas(64) int32_t hit[TILE];
+      rows_may_hit(g, float(x0), float(y0), hit);
       for (int r = 0; r < TILE; ++r) {
-        if (i >= row_max[r]) continue;
+        if ((i >= row_max[r]) | (hit[r] == 0)) continue;
         const float dy = my - (y0 + r + 0.5f);
-        if (!row_may_hit(g, dy, float(x0))) continue;
         const float cdy2 = cc * dy * dy, bdy = cb * dy;
         const int off = r * TILE;
 #pragma omp simd reduction(+ : s_mx, s_my, s_a, s_b, s_c, s_o, s_f0, s_f1, s_f2, s_f3)
