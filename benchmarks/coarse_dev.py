@@ -12,7 +12,8 @@ interval, opacity reset, SH raise, floater window and interval, position-lr deca
 the run is a compressed version of the paper's. Test renders use a white background; the ground truth is the
 test photo composited on white with its mask (paper protocol).
 
-    python benchmarks/coarse_dev.py --iterations 2000 --variants hull random --out benchmarks/results/coarse_dev.json
+    python benchmarks/coarse_dev.py --iterations 2000 --variants hull random \
+        --out benchmarks/results/coarse_dev.json
 """
 
 from __future__ import annotations
@@ -74,13 +75,18 @@ def evaluate(g, scene) -> dict:
     with torch.no_grad():
         for v in scene.test:
             cam = v.camera
-            out = render_gaussians(g, cam.viewmat_tensor()[None], cam.K_tensor()[None], cam.width, cam.height,
-                                   background=white)
+            out = render_gaussians(
+                g, cam.viewmat_tensor()[None], cam.K_tensor()[None], cam.width, cam.height, background=white
+            )
             pred = out.rgb[0].clamp(0, 1)
             gt = torch.from_numpy(scene.composite(v, 1.0).astype(np.float32))
             ps.append(psnr(pred.numpy(), gt.numpy()))
             ss.append(float(ssim(pred, gt)))
-    return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "psnr_per_view": [round(p, 3) for p in ps]}
+    return {
+        "psnr": float(np.mean(ps)),
+        "ssim": float(np.mean(ss)),
+        "psnr_per_view": [round(p, 3) for p in ps],
+    }
 
 
 def run_variant(scene, name: str, iterations: int, seed: int, extra: dict) -> dict:
@@ -126,6 +132,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scenes", nargs="*", default=None)
     ap.add_argument("--iterations", type=int, default=PAPER_ITERS)
     ap.add_argument("--variants", nargs="*", default=["hull", "random"], choices=sorted(VARIANTS))
+    ap.add_argument("--max-size", type=int, default=0, help="downscale images to this longest side (0: keep)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: leave)")
     ap.add_argument("--set", nargs="*", default=[], help="extra coarse params, e.g. max_gaussians=50000")
@@ -136,25 +143,30 @@ def main(argv=None) -> int:
     import yaml
 
     extra = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
-    scenes = args.scenes or sorted(p.name for p in args.data.iterdir() if (p / "transforms_train.json").exists())
+    scenes = args.scenes or sorted(
+        p.name for p in args.data.iterdir() if (p / "transforms_train.json").exists()
+    )
     result = {
         "benchmark": "coarse_dev",
         "iterations": args.iterations,
         "scaled_schedule": args.iterations != PAPER_ITERS,
+        "max_size": args.max_size,
         "torch_threads": torch.get_num_threads(),
         "machine": platform.processor() or platform.machine(),
         "scenes": {},
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for name in scenes:
-        scene = load_scene(args.data / name)
+        scene = load_scene(args.data / name, max_size=args.max_size)
         result["scenes"][name] = {"resolution": [scene.train[0].camera.width, scene.train[0].camera.height]}
         for variant in args.variants:
             r = run_variant(scene, variant, args.iterations, args.seed, extra)
             result["scenes"][name][variant] = r
-            print(f"{name:14s} {variant:12s} PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  "
-                  f"N {r['gaussians']:6d}  cpu {r['coarse_cpu_s']:7.1f}s  wall {r['coarse_wall_s']:7.1f}s",
-                  flush=True)
+            print(
+                f"{name:14s} {variant:12s} PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  "
+                f"N {r['gaussians']:6d}  cpu {r['coarse_cpu_s']:7.1f}s  wall {r['coarse_wall_s']:7.1f}s",
+                flush=True,
+            )
             args.out.write_text(json.dumps(result, indent=2, sort_keys=True))
         s = result["scenes"][name]
         if "hull" in s and "random" in s:

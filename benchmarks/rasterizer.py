@@ -25,7 +25,12 @@ import sys
 import time
 from pathlib import Path
 
-CASES = {"10k_256": (10_000, 256), "50k_256": (50_000, 256), "50k_512": (50_000, 512), "200k_512": (200_000, 512)}
+CASES = {
+    "10k_256": (10_000, 256),
+    "50k_256": (50_000, 256),
+    "50k_512": (50_000, 512),
+    "200k_512": (200_000, 512),
+}
 
 
 def _rss_mb() -> float:
@@ -62,7 +67,9 @@ def measure(case: str, backend: str, repeats: int) -> dict:
 
     with torch.no_grad():  # pairs evaluated per forward (same binning for every backend)
         out = render(*scene, size, size, sh_degree=3, backend="reference" if device == "cpu" else backend)
-        bins = bin_gaussians(out.means2d[0].cpu(), out.means2d.new_zeros(n).cpu(), out.radii[0].cpu(), size, size)
+        bins = bin_gaussians(
+            out.means2d[0].cpu(), out.means2d.new_zeros(n).cpu(), out.radii[0].cpu(), size, size
+        )
         pairs = int(bins.gauss_ids.numel())
         del out
     base = _rss_mb()
@@ -132,10 +139,21 @@ def main(argv: list[str] | None = None) -> int:
             if backend == "reference" and ref_rate is not None:
                 est = CASES[case][0] * ref_rate * (args.ref_repeats + 2)  # warm-up + repeats + probe
                 if est > args.ref_budget_s:
-                    print(f"{case:9s} reference  skipped (estimated {est:.0f} s > --ref-budget-s)", flush=True)
+                    print(
+                        f"{case:9s} reference  skipped (estimated {est:.0f} s > --ref-budget-s)", flush=True
+                    )
                     continue
-            cmd = [sys.executable, __file__, "--worker", case, backend, "--repeats", str(args.repeats),
-                   "--ref-repeats", str(args.ref_repeats)]
+            cmd = [
+                sys.executable,
+                __file__,
+                "--worker",
+                case,
+                backend,
+                "--repeats",
+                str(args.repeats),
+                "--ref-repeats",
+                str(args.ref_repeats),
+            ]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
                 print(f"{case:9s} {backend:10s} FAILED: {proc.stderr.strip().splitlines()[-1:]}", flush=True)
@@ -144,14 +162,17 @@ def main(argv: list[str] | None = None) -> int:
             records.append(rec)
             if backend == "reference":
                 ref_rate = rec["fwdbwd_ms"] / 1e3 / CASES[case][0]
-            print(f"{case:9s} {backend:10s} fwd {rec['fwd_ms']:9.1f} ms  fwd+bwd {rec['fwdbwd_ms']:9.1f} ms  "
-                  f"peak {rec['peak_mb']:7.0f} MB  {rec['evals_per_s']:.3g} evals/s  ({rec['pairs']} pairs, "
-                  f"{rec['threads']} threads)", flush=True)
+            print(
+                f"{case:9s} {backend:10s} fwd {rec['fwd_ms']:9.1f} ms  fwd+bwd {rec['fwdbwd_ms']:9.1f} ms  "
+                f"peak {rec['peak_mb']:7.0f} MB  {rec['evals_per_s']:.3g} evals/s  ({rec['pairs']} pairs, "
+                f"{rec['threads']} threads)",
+                flush=True,
+            )
     by = {(r["case"], r["backend"]): r for r in records}
     for case in args.cases.split(","):
         if (case, "cpu") in by and (case, "reference") in by:
-            print(f"{case}: cpu is {by[(case, 'reference')]['fwdbwd_ms'] / by[(case, 'cpu')]['fwdbwd_ms']:.1f}x "
-                  "faster than the reference (fwd+bwd)")
+            ratio = by[(case, "reference")]["fwdbwd_ms"] / by[(case, "cpu")]["fwdbwd_ms"]
+            print(f"{case}: cpu is {ratio:.1f}x faster than the reference (fwd+bwd)")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(records, indent=1) + "\n")

@@ -2,7 +2,8 @@
 
 The training loop calls ``pre_backward(step, out)`` after rendering (so the screen-space means keep their
 gradient), ``post_backward(step, out, width, height)`` after ``loss.backward()`` (accumulates statistics) and
-``after_step(step, opt, generator)`` after the optimiser step (changes the set: densify, prune, opacity reset).
+``after_step(step, opt, generator)`` after the optimiser step (changes the set: densify, prune, opacity
+reset).
 All state lives in ``state_dict()`` so a checkpoint resumes bit-identically.
 
 Additions to 3DGS, both reported: a Gaussian budget (``max_gaussians``; candidates are ranked by gradient
@@ -82,7 +83,10 @@ class DensifyStrategy:
         """Accumulate the NDC screen-space gradient norm, visibility and colour-gradient statistics."""
         if not self.active(step):
             return
-        radii = out.radii.detach().reshape(-1, out.radii.shape[-1])  # [C,N]
+        radii = out.radii.detach()
+        if radii.dim() == 3:  # gsplat >= 1.5 returns per-axis radii [C,N,2]
+            radii = radii.max(dim=-1).values
+        radii = radii.reshape(-1, radii.shape[-1])  # [C,N]
         visible = radii > 0
         if out.means2d.grad is not None:
             g = out.means2d.grad.detach().reshape(-1, radii.shape[1], 2).clone()
@@ -133,7 +137,9 @@ class DensifyStrategy:
             return torch.zeros_like(prune), 0
         return prune, n_nc
 
-    def _densify_and_prune(self, opt: GaussianOptimizer, step: int, generator: torch.Generator) -> dict[str, int]:
+    def _densify_and_prune(
+        self, opt: GaussianOptimizer, step: int, generator: torch.Generator
+    ) -> dict[str, int]:
         c = self.config
         p = opt.params
         n = len(opt)

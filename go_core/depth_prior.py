@@ -49,7 +49,9 @@ class DepthEstimator:
         inputs = self.processor(images=u8, return_tensors="pt")
         inputs = {k: v.to(self.device) for k, v in inputs.items()}
         pred = self.model(**inputs).predicted_depth  # [1,h',w']
-        pred = torch.nn.functional.interpolate(pred[:, None].float(), size=(h, w), mode="bicubic", align_corners=False)
+        pred = torch.nn.functional.interpolate(
+            pred[:, None].float(), size=(h, w), mode="bicubic", align_corners=False
+        )
         return pred[0, 0].cpu().numpy().astype(np.float32)
 
 

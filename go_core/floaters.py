@@ -34,7 +34,12 @@ class FloaterConfig:
         return asdict(self)
 
     def due(self, step: int) -> bool:
-        return self.enabled and self.every > 0 and step % self.every == 0 and self.start_iter <= step <= self.stop_iter
+        return (
+            self.enabled
+            and self.every > 0
+            and step % self.every == 0
+            and self.start_iter <= step <= self.stop_iter
+        )
 
     def lambda_at(self, step: int) -> float:
         lo, hi = SCHEDULES[self.schedule]
@@ -55,7 +60,9 @@ def knn_mean_distance(points: np.ndarray, k: int | None = None) -> np.ndarray:
     return dist[:, 1:].mean(axis=1)  # the first neighbour is the point itself
 
 
-def floater_mask(points: np.ndarray, lambda_e: float, k: int | None = None, max_fraction: float = 1.0) -> np.ndarray:
+def floater_mask(
+    points: np.ndarray, lambda_e: float, k: int | None = None, max_fraction: float = 1.0
+) -> np.ndarray:
     """Boolean [P]: True for the Gaussians to REMOVE (d_i > mean + λe·std); at most ``max_fraction`` of them,
     the farthest first."""
     d = knn_mean_distance(points, k)

@@ -90,7 +90,9 @@ def _check(cameras: list[Camera], masks: list[np.ndarray]) -> None:
             raise ValueError(f"mask of {cam.name} is {m.shape[:2]}, camera is {cam.height}x{cam.width}")
 
 
-def _initial_box(cameras: list[Camera], masks: list[np.ndarray], threshold: float) -> tuple[np.ndarray, np.ndarray]:
+def _initial_box(
+    cameras: list[Camera], masks: list[np.ndarray], threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
     origins, dirs, half_angles = [], [], []
     for cam, mask in zip(cameras, masks, strict=True):
         rows, cols = np.nonzero(mask > threshold)
@@ -119,7 +121,8 @@ def _initial_box(cameras: list[Camera], masks: list[np.ndarray], threshold: floa
             b += P @ o
         target = np.linalg.lstsq(A, b, rcond=None)[0]
     radius = max(
-        float(np.linalg.norm(target - o)) * np.tan(min(a, 1.4)) for o, a in zip(origins, half_angles, strict=True)
+        float(np.linalg.norm(target - o)) * np.tan(min(a, 1.4))
+        for o, a in zip(origins, half_angles, strict=True)
     )
     radius = radius if np.isfinite(radius) and radius > 0 else 1.0
     return target - 2.0 * radius, target + 2.0 * radius
@@ -183,7 +186,9 @@ def visual_hull(
         kept.append(pts[ok])
         got += int(ok.sum())
     if got == 0:
-        raise EmptyHullError("the visual hull is empty: the masks do not overlap in 3D, the poses are probably wrong")
+        raise EmptyHullError(
+            "the visual hull is empty: the masks do not overlap in 3D, the poses are probably wrong"
+        )
     points = np.concatenate(kept)
     volume = float(np.prod(hi - lo) * got / drawn)
     points = points[:num_points]
@@ -194,7 +199,11 @@ def visual_hull(
 
 
 def hull_colors(
-    points: np.ndarray, cameras: list[Camera], masks: list[np.ndarray], images: list[np.ndarray], threshold: float
+    points: np.ndarray,
+    cameras: list[Camera],
+    masks: list[np.ndarray],
+    images: list[np.ndarray],
+    threshold: float,
 ) -> np.ndarray:
     """Mean bilinear colour over the views whose mask contains the point (all views if none does)."""
     seen = inside_masks(points, cameras, masks, threshold)  # [V,N]

@@ -42,14 +42,21 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = Fa
         raise ValueError(f"ssim: image shapes differ {tuple(a.shape)} vs {tuple(b.shape)}")
     c = a.shape[1]
     g = gaussian_window(dtype=torch.float64).sum(0).to(device=a.device, dtype=a.dtype)  # separable 1D kernel
-    # the five filtered maps in one grouped, separable convolution (== 2D filtering with zero padding)
-    x = torch.cat([a, b, a * a, b * b, a * b], dim=1)
-    k = 5 * c
-    wv = g.view(1, 1, SSIM_WINDOW, 1).expand(k, 1, SSIM_WINDOW, 1).contiguous()
-    wh = g.view(1, 1, 1, SSIM_WINDOW).expand(k, 1, 1, SSIM_WINDOW).contiguous()
     pad = SSIM_WINDOW // 2
-    y = F.conv2d(F.conv2d(x, wv, padding=(pad, 0), groups=k), wh, padding=(0, pad), groups=k)
-    mu1, mu2, e11, e22, e12 = y.split(c, dim=1)
+
+    def filt(x: torch.Tensor) -> torch.Tensor:  # grouped separable convolution == 2D filter, zero padding
+        k = x.shape[1]
+        wv = g.view(1, 1, SSIM_WINDOW, 1).expand(k, 1, SSIM_WINDOW, 1).contiguous()
+        wh = g.view(1, 1, 1, SSIM_WINDOW).expand(k, 1, 1, SSIM_WINDOW).contiguous()
+        return F.conv2d(F.conv2d(x, wv, padding=(pad, 0), groups=k), wh, padding=(0, pad), groups=k)
+
+    # filtered maps in two batched calls: those of an image without gradient (the target) skip autograd
+    if a.requires_grad and not b.requires_grad:
+        with torch.no_grad():
+            mu2, e22 = filt(torch.cat([b, b * b], dim=1)).split(c, dim=1)
+        mu1, e11, e12 = filt(torch.cat([a, a * a, a * b], dim=1)).split(c, dim=1)
+    else:
+        mu1, mu2, e11, e22, e12 = filt(torch.cat([a, b, a * a, b * b, a * b], dim=1)).split(c, dim=1)
     mu1_sq, mu2_sq, mu12 = mu1 * mu1, mu2 * mu2, mu1 * mu2
     s1, s2, s12 = e11 - mu1_sq, e22 - mu2_sq, e12 - mu12
     return ((2 * mu12 + SSIM_C1) * (2 * s12 + SSIM_C2)) / ((mu1_sq + mu2_sq + SSIM_C1) * (s1 + s2 + SSIM_C2))
@@ -84,7 +91,9 @@ def photometric_loss(
     pred: torch.Tensor, target: torch.Tensor, lambda_dssim: float = 0.2, *, channels_last: bool = False
 ) -> torch.Tensor:
     """``(1-λ)·L1 + λ·D-SSIM`` (3DGS, λ = 0.2)."""
-    return (1.0 - lambda_dssim) * l1(pred, target) + lambda_dssim * dssim(pred, target, channels_last=channels_last)
+    return (1.0 - lambda_dssim) * l1(pred, target) + lambda_dssim * dssim(
+        pred, target, channels_last=channels_last
+    )
 
 
 def mask_bce(alpha: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
@@ -99,7 +108,9 @@ def mask_bce(alpha: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torc
     return F.binary_cross_entropy(a, mask.to(a.dtype))
 
 
-def normalize_depth(depth: torch.Tensor, valid: torch.Tensor | None = None, eps: float = 1e-8) -> torch.Tensor:
+def normalize_depth(
+    depth: torch.Tensor, valid: torch.Tensor | None = None, eps: float = 1e-8
+) -> torch.Tensor:
     """Shift/scale-normalised depth ``D* = (D - median(D)) / mean(|D - median(D)|)`` over the valid pixels.
 
     The statistics use only ``valid`` pixels (bool, same shape) when given; the result has the input's shape

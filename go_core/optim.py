@@ -73,7 +73,9 @@ class GaussianOptimizer:
     def gaussians(self) -> Gaussians:
         """The current set as a differentiable view of the parameters."""
         p = self.params
-        return Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], torch.cat([p["sh0"], p["shN"]], 1))
+        return Gaussians(
+            p["means"], p["quats"], p["log_scales"], p["opacity_logits"], torch.cat([p["sh0"], p["shN"]], 1)
+        )
 
     def snapshot(self) -> Gaussians:
         return self.gaussians().detach()

@@ -20,8 +20,20 @@ from go_core.gaussians import Gaussians, num_sh_bases, sh_degree_of
 from go_core.io.atomic import atomic_write
 
 PLY_SH_DEGREE = 3
-_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8", "uchar": "u1", "uint8": "u1",
-          "int": "<i4", "int32": "<i4", "uint": "<u4", "uint32": "<u4", "short": "<i2", "ushort": "<u2"}
+_TYPES = {
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
+    "uchar": "u1",
+    "uint8": "u1",
+    "int": "<i4",
+    "int32": "<i4",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "short": "<i2",
+    "ushort": "<u2",
+}
 
 
 def ply_property_names(degree: int = PLY_SH_DEGREE) -> list[str]:
@@ -106,8 +118,22 @@ def load_ply(path: str | Path, sh_degree: int | None = None) -> Gaussians:
         dtype = np.dtype([(name, t) for name, t in props])
         data = np.frombuffer(f.read(count * dtype.itemsize), dtype=dtype, count=count)
     names = set(dtype.names or ())
-    required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2",
-                "rot_0", "rot_1", "rot_2", "rot_3"]
+    required = [
+        "x",
+        "y",
+        "z",
+        "f_dc_0",
+        "f_dc_1",
+        "f_dc_2",
+        "opacity",
+        "scale_0",
+        "scale_1",
+        "scale_2",
+        "rot_0",
+        "rot_1",
+        "rot_2",
+        "rot_3",
+    ]
     missing = [n for n in required if n not in names]
     if missing:
         raise GoError(f"not a 3DGS .ply: missing properties {missing}", path=path)

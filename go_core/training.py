@@ -29,7 +29,7 @@ import hashlib
 import json
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -321,18 +321,29 @@ def optimize(
                 opt.keep(keep)
                 strategy.on_external_prune(keep)
             stats.floaters_removed += n_removed
-            stats.floater_passes.append({"step": step, "lambda": round(lam, 6), "removed": n_removed,
-                                         "remaining": len(opt)})
+            stats.floater_passes.append(
+                {"step": step, "lambda": round(lam, 6), "removed": n_removed, "remaining": len(opt)}
+            )
             changed = {**changed, "floaters": n_removed}
         stats.max_count = max(stats.max_count, len(opt))
         stats.iterations = step
         if step % max(config.log_every, 1) == 0 or step == config.iterations:
-            stats.loss_log.append({"step": step, "loss": round(loss.item(), 6), "n": len(opt),
-                                   **{k: round(v, 6) for k, v in parts.items()}})
+            stats.loss_log.append(
+                {
+                    "step": step,
+                    "loss": round(loss.item(), 6),
+                    "n": len(opt),
+                    **{k: round(v, 6) for k, v in parts.items()},
+                }
+            )
         if on_progress is not None:
             on_progress(step, {"loss": loss.item(), "n": len(opt), "view": index, **parts, **changed})
-        if checkpoint is not None and checkpoint.every > 0 and step % checkpoint.every == 0 \
-                and step < config.iterations:
+        if (
+            checkpoint is not None
+            and checkpoint.every > 0
+            and step % checkpoint.every == 0
+            and step < config.iterations
+        ):
             stats.densify = dict(getattr(strategy, "counts", {}))
             stats.final_count = len(opt)
             _save_checkpoint(

@@ -47,7 +47,9 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         state["bar"].advance()
 
     spec = CheckpointSpec(Path(ctx.checkpoint_dir), every=int(params.get("checkpoint_every", 500)))
-    gaussians, stats = optimize(init, views, config, generator=generator, on_progress=progress, checkpoint=spec)
+    gaussians, stats = optimize(
+        init, views, config, generator=generator, on_progress=progress, checkpoint=spec
+    )
     if state["bar"] is not None:
         state["bar"].close()
     gaussians.save(ctx.out_dir / "gaussians.npz")
@@ -64,6 +66,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     # coarse.json stays byte-identical between a resumed and an uninterrupted run: timing goes to the record
     atomic_write_json(
         ctx.out_dir / "coarse.json",
-        {**info, "config": asdict(config), "floater_passes": stats.floater_passes, "loss_log": stats.loss_log},
+        {
+            **info,
+            "config": asdict(config),
+            "floater_passes": stats.floater_passes,
+            "loss_log": stats.loss_log,
+        },
     )
     ctx.record(**info, resumed_from=stats.resumed_from, cpu_s_this_process=round(cpu_s, 2))

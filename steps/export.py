@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from go_pipeline.steps._common import final_model_path
+
 from go_core.gaussians import Gaussians
 from go_core.ply import PLY_SH_DEGREE, save_ply
-from go_pipeline.steps._common import final_model_path
 
 VERSION = "1"
 

@@ -22,14 +22,18 @@ def one_thread():
         torch.set_num_threads(n)
 
 
+_BUILT: dict[str, dict[str, str]] = {}  # tiny weights already written in this test session (read-only use)
+
+
 def tiny_weights(root: Path) -> dict[str, str]:
+    """Params pointing at tiny random SD/ControlNet folders (written once per session, under ``root``)."""
     from go_core.diffusion.build import write_tiny_weights
 
-    marker = root / "sd15" / "model_index.json"
-    if marker.is_file():
-        return {"sd15_path": str(root / "sd15"), "controlnet_path": str(root / "controlnet_tile")}
+    if "paths" in _BUILT and Path(_BUILT["paths"]["sd15_path"], "model_index.json").is_file():
+        return dict(_BUILT["paths"])
     with one_thread():
-        return write_tiny_weights(root, seed=0)
+        _BUILT["paths"] = write_tiny_weights(root, seed=0)
+    return dict(_BUILT["paths"])
 
 
 # A tiny synthetic object and a step context for end-to-end tests of the repair steps.

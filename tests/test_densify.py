@@ -31,7 +31,9 @@ def _setup(scales, opacities, grads, colour_grads=None, **cfg):
     strat = DensifyStrategy(config, EXTENT, n)
     strat.grad_accum = torch.tensor(grads, dtype=torch.float32)
     strat.vis_count = torch.ones(n)
-    strat.color_grad = torch.ones(n) if colour_grads is None else torch.tensor(colour_grads, dtype=torch.float32)
+    strat.color_grad = (
+        torch.ones(n) if colour_grads is None else torch.tensor(colour_grads, dtype=torch.float32)
+    )
     return opt, strat
 
 
@@ -97,4 +99,6 @@ def test_state_dict_round_trip():
     o2.load_state_dict(opt.state_dict())
     for k in opt.params:
         assert torch.equal(o2.params[k], opt.params[k])
-        assert torch.equal(o2.optimizer.state[o2.params[k]]["exp_avg_sq"], opt.optimizer.state[opt.params[k]]["exp_avg_sq"])
+        assert torch.equal(
+            o2.optimizer.state[o2.params[k]]["exp_avg_sq"], opt.optimizer.state[opt.params[k]]["exp_avg_sq"]
+        )

@@ -35,7 +35,9 @@ def axis_cameras(dist: float, r: float, size: int = 128, offset=(0.0, 0.0, 0.0))
     ]
 
 
-@pytest.mark.parametrize("r,offset", [(1.0, (0.0, 0.0, 0.0)), (1e4, (3e5, -2e5, 1e5)), (1e-3, (0.01, 0.0, 0.0))])
+@pytest.mark.parametrize(
+    "r,offset", [(1.0, (0.0, 0.0, 0.0)), (1e4, (3e5, -2e5, 1e5)), (1e-3, (0.01, 0.0, 0.0))]
+)
 def test_hull_of_sphere_from_three_axis_views_is_the_tricylinder(r, offset):
     """Three orthographic views of a sphere carve a Steinmetz tricylinder: V = 8(2 - √2) r³. Cameras are far
     away (200 r) so the cones are nearly cylinders; scenes with huge or tiny coordinates work the same."""

@@ -114,3 +114,38 @@ def test_lora_save_load_roundtrip_reproduces_outputs(weights, tmp_path):
         base = load_repair_models(WeightPaths.resolve(weights, env={}))
         c = RepairDiffusion(base).tuning_loss(deg, clean, torch.Generator().manual_seed(1))
     assert torch.equal(a, b) and not torch.equal(a, c)
+
+
+def test_precision_choice():
+    from go_core.diffusion.models import precision_dtypes
+
+    assert precision_dtypes("cpu", "bf16") == (torch.float32, None)  # CPU always runs float32
+    assert precision_dtypes("cuda", "auto") == (torch.bfloat16, torch.bfloat16)
+    assert precision_dtypes("cuda:0", "fp16") == (torch.float16, torch.float16)
+    assert precision_dtypes("cuda", "fp32") == (torch.float32, None)
+    with pytest.raises(ValueError):
+        precision_dtypes("cuda", "int8")
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+@pytest.mark.parametrize("precision", ["bf16", "fp16"])
+def test_half_precision_lora_step_on_cuda(weights, precision):
+    from go_core.diffusion.models import precision_dtypes
+
+    dtype, autocast = precision_dtypes("cuda", precision)
+    m = load_repair_models(WeightPaths.resolve(weights, env={}), device="cuda", dtype=dtype)
+    add_lora(m, LoraSpec(rank=4, alpha=4))
+    for module in m.modules().values():
+        module.to("cuda")
+    assert next(m.unet.parameters()).dtype == dtype
+    assert all(p.dtype == torch.float32 for p in lora_parameters(m))
+    d = RepairDiffusion(m, device="cuda", autocast_dtype=autocast)
+    deg, clean = _pair()
+    opt = torch.optim.AdamW(lora_parameters(m), lr=1e-3)
+    loss = d.tuning_loss(deg.cuda(), clean.cuda(), torch.Generator().manual_seed(0))
+    loss.backward()
+    opt.step()
+    assert torch.isfinite(loss)
+    out = d.repair(deg.cuda(), 0.3, torch.Generator().manual_seed(1))
+    assert out.images.shape == (1, 3, 64, 64) and torch.isfinite(out.images).all()

@@ -20,8 +20,13 @@ def _pair(h=40, w=50, seed=0, dtype=torch.float64):
 def test_ssim_matches_scikit_image_on_valid_window_region():
     a, b = _pair()
     ref = structural_similarity(
-        a.numpy(), b.numpy(), channel_axis=2, gaussian_weights=True, sigma=1.5,
-        use_sample_covariance=False, data_range=1.0,
+        a.numpy(),
+        b.numpy(),
+        channel_axis=2,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
     )
     ours = ssim_map(a, b)[..., 5:-5, 5:-5].mean().item()
     assert ours == pytest.approx(ref, abs=1e-10)

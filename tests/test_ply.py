@@ -31,7 +31,7 @@ def test_header_and_layout(tmp_path):
     props = [line.split()[-1] for line in header.splitlines() if line.startswith("property")]
     assert props == ply_property_names(3) and len(props) == 62
     assert "format binary_little_endian 1.0" in header and "element vertex 50" in header
-    rows = np.frombuffer(raw[len(header):], dtype="<f4").reshape(50, 62)
+    rows = np.frombuffer(raw[len(header) :], dtype="<f4").reshape(50, 62)
     col = {name: i for i, name in enumerate(props)}
     assert np.array_equal(rows[:, col["x"]], g.means[:, 0].numpy())
     assert np.array_equal(rows[:, col["opacity"]], g.opacity_logits.numpy())  # logit, as stored

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from go_core.render import render
+from go_core.render import render, render_gaussians
 from go_core.render.projection import project_gaussians
 from go_core.render.synthetic import random_scene
 from go_core.sh import eval_sh, sh_basis
@@ -38,8 +38,13 @@ def _brute_force(proj, cam: int, width: int, height: int) -> torch.Tensor:
     img = torch.zeros(height, width, 3, dtype=torch.float64)
     order = torch.argsort(proj.depths[cam], stable=True).tolist()
     g = [
-        (proj.means2d[cam, i].tolist(), proj.conics[cam, i].tolist(), float(proj.opacities[cam, i]),
-         proj.colors[cam, i], int(proj.radii[cam, i]))
+        (
+            proj.means2d[cam, i].tolist(),
+            proj.conics[cam, i].tolist(),
+            float(proj.opacities[cam, i]),
+            proj.colors[cam, i],
+            int(proj.radii[cam, i]),
+        )
         for i in order
     ]
     for j in range(height):
@@ -86,7 +91,9 @@ def test_reference_matches_brute_force():
     for cam in range(2):
         ref = _brute_force(proj, cam, W, H)
         assert torch.allclose(out.rgb[cam], ref, atol=1e-12)
-    assert out.rgb.shape == (2, H, W, 3) and out.alpha.shape == (2, H, W, 1) and out.depth.shape == (2, H, W, 1)
+    assert (
+        out.rgb.shape == (2, H, W, 3) and out.alpha.shape == (2, H, W, 1) and out.depth.shape == (2, H, W, 1)
+    )
 
 
 def _directional_fd_check(scene, W, H, grads, weights, antialiased=False, seed=0, h=1e-6, rtol=1e-5):
@@ -98,7 +105,7 @@ def _directional_fd_check(scene, W, H, grads, weights, antialiased=False, seed=0
             if name == "viewmats":
                 direction[:, 3] = 0.0  # the last row of a viewmat is constant
 
-            def f(step):
+            def f(step, k=k, direction=direction):
                 args = list(scene)
                 args[k] = scene[k] + step * direction
                 out = render(*args, W, H, sh_degree=3, backend="reference", antialiased=antialiased)
@@ -128,12 +135,19 @@ def test_reference_gradients_match_finite_differences(antialiased):
 
 def _grads(scene, W, H, backend, dtype, weights, sh_degree=3, antialiased=False, background=None):
     inputs = [t.detach().to(dtype).clone().requires_grad_() for t in scene[:6]]
-    out = render(*inputs, scene[6].to(dtype), W, H, sh_degree=sh_degree, backend=backend,
-                 antialiased=antialiased, background=background)
+    out = render(
+        *inputs,
+        scene[6].to(dtype),
+        W,
+        H,
+        sh_degree=sh_degree,
+        backend=backend,
+        antialiased=antialiased,
+        background=background,
+    )
     out.means2d.retain_grad()
     (_outputs(out) * weights.to(dtype)).sum().backward()
     return out, [t.grad for t in inputs] + [out.means2d.grad]
-
 
 
 @pytest.mark.parametrize("antialiased", [False, True])
@@ -146,7 +160,7 @@ def test_cpu_matches_float64_reference(cpu_ext, antialiased):
     for k in ("rgb", "alpha", "depth"):
         assert _rel(getattr(cpu, k).double(), getattr(ref, k)) <= 1e-5, k
     assert torch.equal(cpu.radii, ref.radii)
-    for name, a, b in zip(NAMES, gcpu, gref):
+    for name, a, b in zip(NAMES, gcpu, gref, strict=True):
         assert _rel(a.double(), b) <= 2e-5, name
 
 
@@ -168,7 +182,7 @@ def test_cpu_lower_sh_degrees_and_rgb_colors(cpu_ext, deg):
     cpu, gcpu = _grads(scene, W, H, "cpu", torch.float32, weights, sh_degree=deg)
     assert _rel(cpu.rgb.double(), ref.rgb) <= 1e-5
     assert _rel(gcpu[4].double(), gref[4]) <= 2e-5
-    assert float(gcpu[4][:, (deg + 1) ** 2:].abs().max()) == 0.0  # unused coefficients get no gradient
+    assert float(gcpu[4][:, (deg + 1) ** 2 :].abs().max()) == 0.0  # unused coefficients get no gradient
     rgb_scene = list(scene)
     rgb_scene[4] = torch.rand(80, 3, dtype=torch.float64)
     ref2, g2 = _grads(rgb_scene, W, H, "reference", torch.float64, weights, sh_degree=None)
@@ -188,8 +202,18 @@ def test_background_and_expected_depth(cpu_ext):
     vm = torch.eye(4)[None].clone()
     vm[0, 2, 3] = 2.5
     K = torch.tensor([[[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]]])
-    one = render(means, torch.tensor([[1.0, 0, 0, 0]]), torch.full((1, 3), 0.2), torch.tensor([0.9]),
-                 torch.ones(1, 3), vm, K, W, H, backend="cpu")
+    one = render(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]),
+        torch.full((1, 3), 0.2),
+        torch.tensor([0.9]),
+        torch.ones(1, 3),
+        vm,
+        K,
+        W,
+        H,
+        backend="cpu",
+    )
     seen = one.alpha[..., 0] > 0.01
     assert seen.sum() > 20
     assert torch.allclose(one.depth[..., 0][seen], torch.tensor(2.5), rtol=1e-5)
@@ -210,5 +234,40 @@ def test_determinism_across_runs_and_threads(cpu_ext):
     (o0, g0) = runs[0]
     for o, g in runs[1:]:
         assert torch.equal(_outputs(o), _outputs(o0))
-        for a, b in zip(g, g0):
+        for a, b in zip(g, g0, strict=True):
             assert torch.equal(a, b)
+
+
+def test_build_key_and_missing_compiler(monkeypatch, tmp_path):
+    from go_core.render import build
+
+    key = build.build_key()
+    assert key == build.build_key() and len(key) == 16
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    assert build.build_root() == tmp_path
+    monkeypatch.setenv("CXX", "no-such-compiler-xyz")
+    with pytest.raises(build.ExtensionBuildError, match="no-such-compiler-xyz"):
+        build.check_compiler()
+
+
+def test_render_gaussians_and_bad_inputs(cpu_ext):
+    from go_core.gaussians import Gaussians
+
+    g = Gaussians.from_points(torch.rand(20, 3) - 0.5, torch.rand(20, 3), torch.full((20,), 0.05), 0.7, 2)
+    scene = random_scene(1, 32, 24, dtype=torch.float32)
+    out = render_gaussians(g, scene[5], scene[6], 32, 24)
+    assert out.rgb.shape == (1, 24, 32, 3) and out.alpha.max() > 0.1
+    with pytest.raises(ValueError, match="quats"):
+        render(
+            torch.zeros(3, 3),
+            torch.zeros(2, 4),
+            torch.zeros(3, 3),
+            torch.zeros(3),
+            torch.zeros(3, 3),
+            scene[5],
+            scene[6],
+            32,
+            24,
+        )
+    with pytest.raises(ValueError, match="backend"):
+        render(*scene[:4], torch.zeros(1, 3), scene[5], scene[6], 32, 24, backend="metal")

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from go_core.render import render
-from go_core.render.synthetic import look_at_viewmat, random_scene
+from go_core.render.synthetic import random_scene
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +33,7 @@ def _run(means, quats, scales, opac, colors, vm, K, W, H, backend, sh_degree=Non
     loss.backward()
     for name in ("rgb", "alpha", "depth", "means2d"):
         assert torch.isfinite(getattr(out, name)).all(), name
-    for name, t in zip(("means", "quats", "scales", "opacities", "colors", "viewmats"), inputs):
+    for name, t in zip(("means", "quats", "scales", "opacities", "colors", "viewmats"), inputs, strict=True):
         assert t.grad is not None and torch.isfinite(t.grad).all(), name
     if out.means2d.grad is not None:
         assert torch.isfinite(out.means2d.grad).all()
@@ -48,25 +48,44 @@ BACKENDS = ["cpu", "reference"]
 def test_tiny_and_huge_scales(cpu_ext, backend):
     g = torch.Generator().manual_seed(0)
     n = 40
-    means = (torch.rand(n, 3, generator=g) - 0.5)
+    means = torch.rand(n, 3, generator=g) - 0.5
     scales = torch.where(torch.arange(n)[:, None] % 2 == 0, torch.full((n, 3), 1e-7), torch.full((n, 3), 1e3))
     scales[::5] = torch.tensor([1e3, 1e-7, 1e-7])  # mixed: a needle
     W, H = (48, 40) if backend == "cpu" else (20, 16)
     vm, K = _camera(W, H)
-    out, _ = _run(means, torch.randn(n, 4, generator=g), scales, torch.full((n,), 0.5), torch.rand(n, 3, generator=g),
-                  vm, K, W, H, backend, antialiased=True)
+    out, _ = _run(
+        means,
+        torch.randn(n, 4, generator=g),
+        scales,
+        torch.full((n,), 0.5),
+        torch.rand(n, 3, generator=g),
+        vm,
+        K,
+        W,
+        H,
+        backend,
+        antialiased=True,
+    )
     assert out.alpha.max() > 0.5  # the huge Gaussians cover the image
 
 
 def test_tiny_scale_matches_reference_and_is_a_dilated_point(cpu_ext):
     means = torch.zeros(1, 3)
     vm, K = _camera()
-    args = (means, torch.tensor([[1.0, 0, 0, 0]]), torch.full((1, 3), 1e-7), torch.tensor([0.8]), torch.ones(1, 3))
+    args = (
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]),
+        torch.full((1, 3), 1e-7),
+        torch.tensor([0.8]),
+        torch.ones(1, 3),
+    )
     cpu, _ = _run(*args, vm, K, 48, 40, "cpu")
     ref, _ = _run(*[a.double() for a in args], vm.double(), K.double(), 48, 40, "reference")
     assert torch.allclose(cpu.rgb.double(), ref.rgb, atol=1e-6)
     # a point blurred by the 0.3 px² filter: peak alpha = 0.8 * exp(-0.5 * d²/0.3) at the nearest pixel centre
-    assert abs(float(cpu.alpha.detach().max()) - 0.8 * float(torch.exp(torch.tensor(-0.5 * 0.5 / 0.3)))) < 1e-5
+    assert (
+        abs(float(cpu.alpha.detach().max()) - 0.8 * float(torch.exp(torch.tensor(-0.5 * 0.5 / 0.3)))) < 1e-5
+    )
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -87,11 +106,16 @@ def test_zero_and_unnormalised_quaternions(cpu_ext, backend):
 def test_extreme_anisotropy_matches_reference(cpu_ext):
     g = torch.Generator().manual_seed(4)
     n = 30
-    means = (torch.rand(n, 3, generator=g, dtype=torch.float64) - 0.5)
+    means = torch.rand(n, 3, generator=g, dtype=torch.float64) - 0.5
     scales = torch.tensor([[0.5, 1e-5, 1e-5]], dtype=torch.float64).repeat(n, 1)
     quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
-    args = (means, quats, scales, torch.full((n,), 0.7, dtype=torch.float64),
-            torch.rand(n, 3, generator=g, dtype=torch.float64))
+    args = (
+        means,
+        quats,
+        scales,
+        torch.full((n,), 0.7, dtype=torch.float64),
+        torch.rand(n, 3, generator=g, dtype=torch.float64),
+    )
     vm, K = _camera(dtype=torch.float64)
     ref, gref = _run(*args, vm, K, 48, 40, "reference")
     cpu, gcpu = _run(*[a.float() for a in args], vm.float(), K.float(), 48, 40, "cpu")
@@ -107,9 +131,19 @@ def test_near_plane(cpu_ext, backend):
     n = len(z)
     means = torch.stack([torch.full((n,), 1e-3), torch.zeros(n), z], -1)
     vm, K = _camera(z=0.0)
-    out, grads = _run(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 0.05),
-                      torch.full((n,), 0.6), torch.rand(n, 3, generator=torch.Generator().manual_seed(5)),
-                      vm, K, 48, 40, backend, near_plane=near)
+    out, grads = _run(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 0.05),
+        torch.full((n,), 0.6),
+        torch.rand(n, 3, generator=torch.Generator().manual_seed(5)),
+        vm,
+        K,
+        48,
+        40,
+        backend,
+        near_plane=near,
+    )
     radii = out.radii[0]
     assert (radii[z < near] == 0).all() and (radii[z >= near] > 0).all()
     assert (grads[0][z < near] == 0).all()  # culled Gaussians get no gradient
@@ -122,9 +156,19 @@ def test_camera_inside_the_cloud(cpu_ext, backend):
     means = torch.randn(n, 3, generator=g)  # around the camera, in every direction, some within 1e-3
     means[:5] *= 1e-3
     vm, K = _camera(z=0.0)
-    out, _ = _run(means, torch.randn(n, 4, generator=g), torch.rand(n, 3, generator=g) * 0.3,
-                  torch.rand(n, generator=g), torch.randn(n, 4, 3, generator=g), vm, K, 48, 40, backend,
-                  sh_degree=1)
+    out, _ = _run(
+        means,
+        torch.randn(n, 4, generator=g),
+        torch.rand(n, 3, generator=g) * 0.3,
+        torch.rand(n, generator=g),
+        torch.randn(n, 4, 3, generator=g),
+        vm,
+        K,
+        48,
+        40,
+        backend,
+        sh_degree=1,
+    )
     visible = out.radii[0] > 0
     assert not (visible & (means[:, 2] < 0.01)).any() and visible.sum() > 50
     assert out.alpha.max() > 0.9
@@ -135,16 +179,36 @@ def test_one_hundred_thousand_on_one_pixel(cpu_ext):
     means = torch.zeros(n, 3)
     vm, K = _camera(48, 40)
     colors = torch.rand(n, 3, generator=torch.Generator().manual_seed(7))
-    out, grads = _run(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 1e-3),
-                      torch.full((n,), 0.5), colors, vm, K, 48, 40, "cpu")
+    out, grads = _run(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 1e-3),
+        torch.full((n,), 0.5),
+        colors,
+        vm,
+        K,
+        48,
+        40,
+        "cpu",
+    )
     centre = out.alpha[0, 20, 24, 0]
     # front to back, each α = 0.5·exp(-σ): the pixel saturates and stops before T ≤ 1e-4
     assert 0.999 < float(centre.detach()) <= 1 - 1e-4 + 1e-6
     # only Gaussians composited before the pixels stop matter (faint edge pixels need ~2k of them)
     assert 10 < int((grads[3] != 0).sum()) < 5000
     # equal depths: ties keep index order, so the front-most is Gaussian 0 and the result is deterministic
-    again, _ = _run(means, torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1), torch.full((n, 3), 1e-3),
-                    torch.full((n,), 0.5), colors, vm, K, 48, 40, "cpu")
+    again, _ = _run(
+        means,
+        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        torch.full((n, 3), 1e-3),
+        torch.full((n,), 0.5),
+        colors,
+        vm,
+        K,
+        48,
+        40,
+        "cpu",
+    )
     assert torch.equal(out.rgb, again.rgb)
 
 
@@ -152,15 +216,36 @@ def test_one_hundred_thousand_on_one_pixel(cpu_ext):
 def test_empty_scene_and_all_culled(cpu_ext, backend):
     vm, K = _camera(31, 17)
     bg = torch.tensor([0.1, 0.2, 0.3])
-    empty = render(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, 3), torch.zeros(0), torch.zeros(0, 3),
-                   vm, K, 31, 17, background=bg, backend=backend)
+    empty = render(
+        torch.zeros(0, 3),
+        torch.zeros(0, 4),
+        torch.zeros(0, 3),
+        torch.zeros(0),
+        torch.zeros(0, 3),
+        vm,
+        K,
+        31,
+        17,
+        background=bg,
+        backend=backend,
+    )
     assert empty.rgb.shape == (1, 17, 31, 3) and torch.allclose(empty.rgb, bg.expand(1, 17, 31, 3))
     assert (empty.alpha == 0).all() and torch.isfinite(empty.depth).all() and empty.radii.shape == (1, 0)
     n = 20
     behind = torch.randn(n, 3, generator=torch.Generator().manual_seed(8))
     behind[:, 2] = -5.0  # camera at z=-3 looks along +z: these are behind it
-    out, grads = _run(behind, torch.randn(n, 4), torch.full((n, 3), 0.1), torch.full((n,), 0.9), torch.rand(n, 3),
-                      vm, K, 31, 17, backend)
+    out, grads = _run(
+        behind,
+        torch.randn(n, 4),
+        torch.full((n, 3), 0.1),
+        torch.full((n,), 0.9),
+        torch.rand(n, 3),
+        vm,
+        K,
+        31,
+        17,
+        backend,
+    )
     assert (out.radii == 0).all() and (out.alpha == 0).all()
     assert all(float(g.abs().max()) == 0.0 for g in grads)
 

@@ -49,8 +49,9 @@ def _views():
     views = []
     with torch.no_grad():
         for cam in _cameras():
-            out = render_gaussians(gt, cam.viewmat_tensor()[None], cam.K_tensor()[None], SIZE, SIZE,
-                                   backend=BACKEND)
+            out = render_gaussians(
+                gt, cam.viewmat_tensor()[None], cam.K_tensor()[None], SIZE, SIZE, backend=BACKEND
+            )
             alpha = out.alpha[0, ..., 0]
             rgb = out.rgb[0] / alpha.clamp_min(1e-6)[..., None]  # straight colour, like a photo's RGBA
             views.append(TrainView(cam, rgb.clamp(0, 1), alpha.clamp(0, 1)))
@@ -80,8 +81,15 @@ def _psnr(g: Gaussians, views) -> float:
     errs = []
     with torch.no_grad():
         for v in views:
-            out = render_gaussians(g, v.camera.viewmat_tensor()[None], v.camera.K_tensor()[None], SIZE, SIZE,
-                                   background=torch.ones(3), backend=BACKEND)
+            out = render_gaussians(
+                g,
+                v.camera.viewmat_tensor()[None],
+                v.camera.K_tensor()[None],
+                SIZE,
+                SIZE,
+                background=torch.ones(3),
+                backend=BACKEND,
+            )
             gt = v.image * v.mask[..., None] + (1 - v.mask[..., None])
             errs.append(((out.rgb[0] - gt) ** 2).mean().item())
     return float(-10 * np.log10(np.mean(errs)))
@@ -111,8 +119,15 @@ def test_hooks_compose_fixed_set_extra_loss_and_view_weights():
         return 1e-3 * g.log_scales.exp().sum()
 
     cfg = _tiny_config(9)
-    out, stats = optimize(_init(), views, cfg, generator=torch.Generator().manual_seed(0), strategy=NoDensify(),
-                          extra_loss=extra, sample_view=lambda step, gen: step % 3)
+    out, stats = optimize(
+        _init(),
+        views,
+        cfg,
+        generator=torch.Generator().manual_seed(0),
+        strategy=NoDensify(),
+        extra_loss=extra,
+        sample_view=lambda step, gen: step % 3,
+    )
     assert len(out) == 30 and seen == [1, 2, 0] * 3
     assert stats.floaters_removed >= 0
 
@@ -131,7 +146,14 @@ def test_killed_run_resumes_bit_identically(tmp_path):
 
     spec = CheckpointSpec(tmp_path / "ckpt", every=6)
     with pytest.raises(Killed):
-        optimize(_init(), views, cfg, generator=torch.Generator().manual_seed(7), checkpoint=spec, on_progress=killer)
+        optimize(
+            _init(),
+            views,
+            cfg,
+            generator=torch.Generator().manual_seed(7),
+            checkpoint=spec,
+            on_progress=killer,
+        )
     assert [p.name for p in (tmp_path / "ckpt").glob("*.pt")] == ["ckpt_0000024.pt"]
     # the resumed run gets a fresh generator with the same seed: the checkpoint restores its state
     out, stats = optimize(_init(), views, cfg, generator=torch.Generator().manual_seed(7), checkpoint=spec)
@@ -147,9 +169,46 @@ def test_killed_run_resumes_bit_identically(tmp_path):
 
 
 def test_config_from_flat_params():
-    cfg = config_from_params({"iterations": 123, "floaters": False, "floater_schedule": "paper",
-                              "max_gaussians": 5, "feature_lr": 0.01, "lambda_depth": 0, "unknown": 1})
+    cfg = config_from_params(
+        {
+            "iterations": 123,
+            "floaters": False,
+            "floater_schedule": "paper",
+            "max_gaussians": 5,
+            "feature_lr": 0.01,
+            "lambda_depth": 0,
+            "unknown": 1,
+        }
+    )
     assert cfg.iterations == 123 and not cfg.floaters.enabled and cfg.floaters.schedule == "paper"
     assert cfg.densify.max_gaussians == 5 and cfg.lr.shN == pytest.approx(0.0005) and cfg.lambda_depth == 0.0
     with pytest.raises(ValueError):
         config_from_params({"floater_schedule": "nope"})
+
+
+def test_depth_prior_term_enters_the_loss_with_gradients():
+    from go_core.training import view_loss
+
+    views = _views()
+    v = views[0]
+    g = _gt().map(lambda t: t.clone().requires_grad_(True))
+    cfg = _tiny_config(1)
+    cfg.lambda_depth = 1.0
+    bg = torch.ones(3)
+    out = render_gaussians(
+        g,
+        v.camera.viewmat_tensor()[None],
+        v.camera.K_tensor()[None],
+        SIZE,
+        SIZE,
+        background=bg,
+        backend=BACKEND,
+    )
+    prior = torch.rand(SIZE, SIZE, generator=torch.Generator().manual_seed(0))
+    with_depth = TrainView(v.camera, v.image, v.mask, prior)
+    loss_d, parts_d = view_loss(out, with_depth, bg, cfg, 1)
+    loss, parts = view_loss(out, v, bg, cfg, 1)
+    assert "depth" in parts_d and "depth" not in parts
+    assert loss_d.item() == pytest.approx(loss.item() + parts_d["depth"], rel=1e-5)
+    (loss_d - loss).backward()
+    assert g.means.grad is not None and g.means.grad.abs().sum().item() > 0

@@ -13,6 +13,8 @@ CONTRACT (all backends; owned by the rasterizer work, issue #3):
 * background: None (black) or [3] / [C,3] RGB added as ``rgb + (1 - alpha) * background``.
 * Differentiable w.r.t. means, quats, scales, opacities, colors and viewmats.
 * ``backend``: "auto" (gsplat for CUDA tensors, else "cpu"), "cpu", "cuda", "reference".
+
+The maths (projection, tiles, compositing, backward) and the backends are documented in docs/rendering.md.
 """
 
 from go_core.render.api import RenderOutput, render, render_gaussians

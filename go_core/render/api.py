@@ -1,7 +1,8 @@
-"""Backend dispatch for the rendering API (see go_core.render for the contract, docs/rendering.md for the maths)."""
+"""Backend dispatch for the rendering API (contract: go_core.render; maths: docs/rendering.md)."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import torch
@@ -30,7 +31,11 @@ def _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, 
     n = means.shape[0]
     if means.dim() != 2 or means.shape[1] != 3:
         raise ValueError(f"means must be [N,3], got {tuple(means.shape)}")
-    for name, t, shape in (("quats", quats, (n, 4)), ("scales", scales, (n, 3)), ("opacities", opacities, (n,))):
+    for name, t, shape in (
+        ("quats", quats, (n, 4)),
+        ("scales", scales, (n, 3)),
+        ("opacities", opacities, (n,)),
+    ):
         if tuple(t.shape) != shape:
             raise ValueError(f"{name} must be {list(shape)}, got {tuple(t.shape)}")
     if colors.shape[0] != n:
@@ -44,11 +49,22 @@ def _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, 
 
 
 def _resolve_backend(backend: str, device: torch.device) -> str:
+    """Resolve "auto": gsplat for CUDA tensors, else the compiled CPU backend, or (warning) the reference
+    when the extension cannot be built on this machine. An explicit "cpu" raises instead."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown render backend {backend!r}; choose one of {BACKENDS}")
-    if backend == "auto":
-        return "cuda" if device.type == "cuda" else "cpu"
-    return backend
+    if backend != "auto":
+        return backend
+    if device.type == "cuda":
+        return "cuda"
+    from go_core.render.build import ExtensionBuildError, load_extension
+
+    try:
+        load_extension()
+    except ExtensionBuildError as exc:
+        warnings.warn(f"{exc}; falling back to the slow pure-torch reference renderer", stacklevel=3)
+        return "reference"
+    return "cpu"
 
 
 def render(
@@ -77,8 +93,19 @@ def render(
         from go_core.render.gsplat_backend import render_gsplat
 
         out = render_gsplat(
-            means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-            sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased,
+            means,
+            quats,
+            scales,
+            opacities,
+            colors,
+            viewmats,
+            Ks,
+            width,
+            height,
+            sh_degree=sh_degree,
+            near_plane=near_plane,
+            far_plane=far_plane,
+            antialiased=antialiased,
         )
     else:
         if kind == "reference":
@@ -88,8 +115,19 @@ def render(
                 raise ValueError(f"backend='cpu' needs CPU tensors, got {means.device}")
             from go_core.render.cpu import project_cpu as project
         proj = project(
-            means, quats, scales, opacities, colors, viewmats, Ks, width, height,
-            sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased,
+            means,
+            quats,
+            scales,
+            opacities,
+            colors,
+            viewmats,
+            Ks,
+            width,
+            height,
+            sh_degree=sh_degree,
+            near_plane=near_plane,
+            far_plane=far_plane,
+            antialiased=antialiased,
         )
         feats = torch.cat([proj.colors, proj.depths[..., None]], dim=-1)  # depth as a 4th channel
         if kind == "reference":

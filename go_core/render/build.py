@@ -1,4 +1,4 @@
-"""Build (once per machine) and load the compiled CPU rasterizer; ``python -m go_core.render.build`` prebuilds.
+"""Build once per machine and load the compiled CPU rasterizer (`python -m go_core.render.build` prebuilds).
 
 The extension is compiled from go_core/render/csrc/*.cpp with the system C++ compiler through
 ``torch.utils.cpp_extension.load`` (ninja). The build directory is keyed by a hash of the sources, flags,
@@ -56,17 +56,23 @@ def build_root() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "go-pipeline" / "torch_extensions"
 
 
-@functools.cache
-def load_extension(verbose: bool = False):
-    """The compiled module (built on first use; cached on disk and in this process)."""
-    from torch.utils import cpp_extension
-
+def check_compiler() -> str:
+    """The C++ compiler torch will use (``$CXX`` or ``c++``); ExtensionBuildError if it is missing."""
     cxx = os.environ.get("CXX", "c++")
     if shutil.which(cxx) is None:
         raise ExtensionBuildError(
             f"the CPU rasterizer needs a C++ compiler ({cxx!r} not found on PATH); install g++ "
             "(e.g. `apt-get install g++`) or use backend='reference'"
         )
+    return cxx
+
+
+@functools.cache
+def load_extension(verbose: bool = False):
+    """The compiled module (built on first use; cached on disk and in this process)."""
+    from torch.utils import cpp_extension
+
+    check_compiler()
     name = f"go_raster_cpu_{build_key()}"
     build_dir = build_root() / name
     build_dir.mkdir(parents=True, exist_ok=True)

@@ -36,9 +36,12 @@ class _ProjectCPU(torch.autograd.Function):
         inputs = ctx.saved_tensors
         C, N = inputs[5].shape[0], inputs[0].shape[0]
         shapes = ((C, N, 2), (C, N, 3), (C, N, 3), (C, N), (C, N))
-        grads = [_f32(g) if g is not None else torch.zeros(s) for g, s in zip((g_m2, g_con, g_col, g_op, g_dep), shapes)]
+        grads = [
+            _f32(g) if g is not None else torch.zeros(s)
+            for g, s in zip((g_m2, g_con, g_col, g_op, g_dep), shapes, strict=True)
+        ]
         out = ext.project_backward(*inputs, *ctx.settings, *grads)
-        return (*[g.to(dt) for g, dt in zip(out, ctx.dtypes)], None, None)
+        return (*[g.to(dt) for g, dt in zip(out, ctx.dtypes, strict=True)], None, None)
 
 
 def project_cpu(
@@ -61,15 +64,25 @@ def project_cpu(
     """Compiled equivalent of ``go_core.render.projection.project_gaussians``."""
     if sh_degree is not None:
         if colors.dim() != 3 or colors.shape[-1] != 3 or colors.shape[1] < (sh_degree + 1) ** 2:
-            raise ValueError(f"sh_degree={sh_degree} needs colors [N,≥{(sh_degree + 1) ** 2},3], got "
-                             f"{tuple(colors.shape)}")
+            raise ValueError(
+                f"sh_degree={sh_degree} needs colors [N,≥{(sh_degree + 1) ** 2},3], got {tuple(colors.shape)}"
+            )
         if not 0 <= sh_degree <= 3:
             raise ValueError(f"SH degree must be in 0..3, got {sh_degree}")
     elif colors.dim() != 2 or colors.shape[-1] != 3:
         raise ValueError(f"without sh_degree colors must be RGB [N,3], got {tuple(colors.shape)}")
-    settings = (int(width), int(height), float(near_plane), float(far_plane), float(eps2d), bool(antialiased),
-                -1 if sh_degree is None else int(sh_degree))
-    m2, con, col, op, dep, rad = _ProjectCPU.apply(means, quats, scales, opacities, colors, viewmats, Ks, settings)
+    settings = (
+        int(width),
+        int(height),
+        float(near_plane),
+        float(far_plane),
+        float(eps2d),
+        bool(antialiased),
+        -1 if sh_degree is None else int(sh_degree),
+    )
+    m2, con, col, op, dep, rad = _ProjectCPU.apply(
+        means, quats, scales, opacities, colors, viewmats, Ks, settings
+    )
     return Projected(m2, con, col, op, dep, rad)
 
 

@@ -101,9 +101,9 @@ def project_gaussians(
     tx = z_safe * torch.minimum(lim_x_pos, torch.maximum(-lim_x_neg, x_safe * rz))
     ty = z_safe * torch.minimum(lim_y_pos, torch.maximum(-lim_y_neg, y_safe * rz))
     zero = torch.zeros_like(z_safe)
-    J = torch.stack(
-        [fx * rz, zero, -fx * tx * rz * rz, zero, fy * rz, -fy * ty * rz * rz], dim=-1
-    ).reshape(C, -1, 2, 3)
+    J = torch.stack([fx * rz, zero, -fx * tx * rz * rz, zero, fy * rz, -fy * ty * rz * rz], dim=-1).reshape(
+        C, -1, 2, 3
+    )
 
     # T = J W R S  (2x3); Σ2d = T Tᵀ + eps2d I
     M = quat_to_rotmat(quats) * scales[:, None, :]  # [N,3,3] = R S

@@ -119,7 +119,9 @@ def rasterize_reference(
             n = bins.offsets[tiles + 1] - start
             ar = torch.arange(L, dtype=torch.int64)
             gvalid = ar[None, :] < n[:, None]
-            pos = torch.where(gvalid, start[:, None] + ar[None, :], torch.zeros_like(gvalid, dtype=torch.int64))
+            pos = torch.where(
+                gvalid, start[:, None] + ar[None, :], torch.zeros_like(gvalid, dtype=torch.int64)
+            )
             gidx = bins.gauss_ids[pos]
             gidx = torch.where(gvalid, gidx, torch.zeros_like(gidx))
             px0 = (tiles % bins.tiles_x) * TILE

@@ -21,8 +21,18 @@ def look_at_viewmat(eye, target, dtype=torch.float64) -> torch.Tensor:
     return vm
 
 
-def random_scene(n: int, width: int, height: int, *, cams: int = 1, sh_degree: int = 3, seed: int = 0,
-                 dtype=torch.float64, scale: float = 0.06, spread: float = 0.6):
+def random_scene(
+    n: int,
+    width: int,
+    height: int,
+    *,
+    cams: int = 1,
+    sh_degree: int = 3,
+    seed: int = 0,
+    dtype=torch.float64,
+    scale: float = 0.06,
+    spread: float = 0.6,
+):
     """Gaussians in a ball seen by ``cams`` cameras on a circle of radius 3 (inputs ready for render())."""
     g = torch.Generator().manual_seed(seed)
     means = (torch.rand(n, 3, generator=g, dtype=dtype) - 0.5) * 2 * spread
@@ -41,8 +51,15 @@ def random_scene(n: int, width: int, height: int, *, cams: int = 1, sh_degree: i
     return means, quats, scales, opac, sh, torch.stack(vms), torch.stack(Ks)
 
 
-def benchmark_scene(n: int, size: int, *, seed: int = 0, sigma_px: tuple[float, float] = (1.0, 8.0),
-                    sh_degree: int = 3, dtype=torch.float32):
+def benchmark_scene(
+    n: int,
+    size: int,
+    *,
+    seed: int = 0,
+    sigma_px: tuple[float, float] = (1.0, 8.0),
+    sh_degree: int = 3,
+    dtype=torch.float32,
+):
     """A realistic load: n Gaussians in a unit ball seen from 3 units away by one size x size camera.
 
     Screen-space standard deviations are log-uniform in ``sigma_px`` (pixels), anisotropy up to ~3:1,

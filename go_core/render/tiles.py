@@ -60,7 +60,9 @@ def bin_gaussians(
     order, counts_o = order[keep], counts_o[keep]
     total = int(counts_o.sum())
     if total == 0:
-        return TileBins(tx, ty, torch.zeros(n_tiles + 1, dtype=torch.int64), torch.zeros(0, dtype=torch.int64))
+        return TileBins(
+            tx, ty, torch.zeros(n_tiles + 1, dtype=torch.int64), torch.zeros(0, dtype=torch.int64)
+        )
     gid = torch.repeat_interleave(order, counts_o)
     start = torch.cumsum(counts_o, 0) - counts_o
     k = torch.arange(total, dtype=torch.int64) - torch.repeat_interleave(start, counts_o)

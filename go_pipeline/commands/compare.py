@@ -12,19 +12,15 @@ from go_core.errors import GoError
 
 
 def load_rgb(path: Path, background: float = 1.0) -> np.ndarray:
-    """float32 [H,W,3] in [0, 1]; an alpha channel is composited over ``background`` (white)."""
-    from PIL import Image
+    """float32 [H,W,3] in [0, 1] (8/16-bit, float, EXR via go_core.io.images); alpha is composited over
+    ``background`` (white, the paper protocol)."""
+    from go_core.io.images import read_image, split_rgb_alpha
 
-    try:
-        im = Image.open(path)
-        im.load()
-    except (OSError, ValueError) as exc:
-        raise GoError(f"cannot read image ({exc})", path) from exc
-    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
-        arr = np.asarray(im.convert("RGBA"), np.float32) / 255.0
-        a = arr[..., 3:4]
-        return (arr[..., :3] * a + background * (1.0 - a)).astype(np.float32)
-    return np.asarray(im.convert("RGB"), np.float32) / 255.0
+    rgb, alpha = split_rgb_alpha(read_image(path))
+    if alpha is not None:
+        a = np.clip(alpha, 0.0, 1.0)[..., None]
+        rgb = rgb * a + background * (1.0 - a)
+    return np.clip(rgb, 0.0, 1.0).astype(np.float32)
 
 
 def compare_images(a: np.ndarray, b: np.ndarray, nets: tuple[str, ...] = ("vgg", "alex")) -> dict:

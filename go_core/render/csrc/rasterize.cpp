@@ -358,8 +358,11 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
     const int32_t L = static_cast<int32_t>(toff[tile + 1] - start);
     if (L == 0) return;
     std::memset(R + start * NG, 0, sizeof(float) * NG * L);
-    alignas(64) float Tr[NPIX], Tf[NPIX], S0[NPIX], S1[NPIX], S2[NPIX], S3[NPIX];
-    alignas(64) float G0[NPIX], G1[NPIX], G2[NPIX], G3[NPIX], GA[NPIX];
+    // Per pixel: Tr = transmittance after the current Gaussian (starts at the saved final one);
+    // Q = Σ_ch G_ch S_ch - G_alpha T_final with S_ch = Σ_{later j} f_j,ch α_j T_j, so that
+    // dL/dα_i = T_i (G·f_i) - Q / (1 - α_i)   (one accumulator instead of one per channel).
+    alignas(64) float Tr[NPIX], Q[NPIX];
+    alignas(64) float G0[NPIX], G1[NPIX], G2[NPIX], G3[NPIX];
     alignas(64) int32_t st[NPIX];
     int row_max[TILE];
     int imax = 0;
@@ -370,13 +373,12 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
         const bool inside = (y0 + r < height) && (x0 + k < width);
         const int64_t pix = inside ? (c * height + y0 + r) * width + x0 + k : 0;
         st[p] = inside ? ps[pix] : 0;
-        Tr[p] = Tf[p] = inside ? pt[pix] : 1.0f;
-        S0[p] = S1[p] = S2[p] = S3[p] = 0.0f;
+        Tr[p] = inside ? pt[pix] : 1.0f;
+        Q[p] = inside ? -ga[pix] * pt[pix] : 0.0f;
         G0[p] = inside ? gf[4 * pix] : 0.0f;
         G1[p] = inside ? gf[4 * pix + 1] : 0.0f;
         G2[p] = inside ? gf[4 * pix + 2] : 0.0f;
         G3[p] = inside ? gf[4 * pix + 3] : 0.0f;
-        GA[p] = inside ? ga[pix] : 0.0f;
         row_max[r] = std::max(row_max[r], st[p]);
       }
       imax = std::max(imax, row_max[r]);
@@ -408,13 +410,10 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
           const float ra = 1.0f / (1.0f - al);
           const float ti = Tr[p] * ra;
           const float w = use ? al * ti : 0.0f;
-          float d_al = G0[p] * (f0 * ti - S0[p] * ra) + G1[p] * (f1 * ti - S1[p] * ra) +
-                       G2[p] * (f2 * ti - S2[p] * ra) + G3[p] * (f3 * ti - S3[p] * ra) + GA[p] * Tf[p] * ra;
+          const float gfi = G0[p] * f0 + G1[p] * f1 + G2[p] * f2 + G3[p] * f3;
+          float d_al = gfi * ti - Q[p] * ra;
           d_al = use ? d_al : 0.0f;
-          S0[p] += w * f0;
-          S1[p] += w * f1;
-          S2[p] += w * f2;
-          S3[p] += w * f3;
+          Q[p] += w * gfi;
           Tr[p] = use ? ti : Tr[p];
           s_f0 += w * G0[p];
           s_f1 += w * G1[p];
