@@ -39,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pipeline", help="pipeline.yaml (default: the packaged one)")
     ap.add_argument("--profile", help="profile (default: example for the built-in example)")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="STEP.PARAM=VALUE")
+    ap.add_argument("--until", metavar="STEP", help="pass --until STEP to go-pipeline run")
     ap.add_argument(
         "--toy", action="store_true", help="use the tests' toy pipeline instead of the real steps"
     )
@@ -67,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
         extra += ["--pipeline", args.pipeline]
     if args.profile:
         extra += ["--profile", args.profile]
+    if args.until:
+        extra += ["--until", args.until]
     for s in args.sets:
         extra += ["--set", s]
     cmd = cli_command() + target + extra

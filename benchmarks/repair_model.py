@@ -133,9 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     gs_total = None if args.gs_iter_ms is None else args.gs_iter_ms / 1000.0 * args.gs_iterations
     result = {
         "device": args.device,
-        "device_name": torch.cuda.get_device_name()
-        if args.device.startswith("cuda")
-        else _cpu_name(),
+        "device_name": torch.cuda.get_device_name() if args.device.startswith("cuda") else _cpu_name(),
         "size": args.size,
         "comparable_with_paper": args.size == "full" and args.device.startswith("cuda") and res == 512,
         "resolution": res,

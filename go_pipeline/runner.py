@@ -243,6 +243,9 @@ def run_pipeline(
                 f"({summary.wall_s:.1f} s); artifacts in {plan.workdir / 'artifacts'}"
             )
             return summary
+        except BaseException as e:
+            display.log.debug(f"run failed: {type(e).__name__}: {e}")  # the log file only
+            raise
         finally:
             display.close()
 
@@ -366,9 +369,8 @@ def _run_one(
     _remove_if_empty(ckpt.parent)
     done[name] = manifest
     status = "skipped" if result.records.get("status") == "skipped" else "ran"
-    extra = (
-        f" ({result.records.get('reason')})" if status == "skipped" and result.records.get("reason") else ""
-    )
+    reason = str(result.records.get("reason") or "") if status == "skipped" else ""
+    extra = f" ({reason[:77] + '...' if len(reason) > 80 else reason})" if reason else ""
     display.log.info(
         f"  {name:<12} {status:<8} {key[:12]} {result.wall_s:7.1f} s  cpu {result.cpu_s:6.1f} s  "
         f"peak {result.peak_mem_mb:7.0f} MiB{extra}"

@@ -43,8 +43,8 @@ def settings_from(params: dict, sh_degree: int, coarse_config: dict | None = Non
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    from go_core.io.npz import write_npz_deterministic
     from go_core.repair.data import training_views
-    from go_core.scene.artifact import write_npz_deterministic
     from go_core.training import scene_extent
 
     scene, views = training_views(inputs["scene"], inputs.get("mask"))

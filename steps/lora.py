@@ -106,7 +106,14 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     )
     if settings.resolution % 64:
         raise ValueError(f"lora.resolution must be a multiple of 64, got {settings.resolution}")
-    progress = ctx.progress(settings.steps, "LoRA tuning")
+    bar: dict = {}
+
+    def advance(step: int) -> None:
+        """Progress bar created at the first step run, so a resumed run starts at its checkpoint."""
+        if "p" not in bar:
+            bar["p"] = ctx.progress(settings.steps, "LoRA tuning", completed=step - 1)
+        bar["p"].advance()
+
     summary = tune(
         diffusion,
         spec,
@@ -114,10 +121,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         settings,
         ctx.seed,
         checkpoint_dir=Path(ctx.checkpoint_dir),
-        on_step=lambda step, loss: progress.advance(),
+        on_step=lambda step, loss: advance(step),
         fingerprint_extra=device,
     )
-    progress.close()
+    if "p" in bar:
+        bar["p"].close()
     resumed_from = summary.pop("resumed_from")
     save_lora(Path(ctx.out_dir) / "lora.safetensors", models, spec, extra={"prompt": prompt})
     info = {

@@ -144,7 +144,14 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     _, views = training_views(inputs["scene"], inputs.get("mask"))
     coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
     torch.manual_seed(int(ctx.seed))
-    progress = ctx.progress(settings.iterations, "Gaussian repair")
+    bar: dict = {}
+
+    def advance(step: int) -> None:
+        """Progress bar created at the first step run, so a resumed run starts at its checkpoint."""
+        if "p" not in bar:
+            bar["p"] = ctx.progress(settings.iterations, "Gaussian repair", completed=step - 1)
+        bar["p"].advance()
+
     result, summary, facts = repair_gaussians(
         coarse,
         views,
@@ -153,9 +160,10 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         ctx.seed,
         checkpoint_dir=Path(ctx.checkpoint_dir),
         lpips=lpips,
-        on_progress=lambda step, info: progress.advance(),
+        on_progress=lambda step, info: advance(step),
     )
-    progress.close()
+    if "p" in bar:
+        bar["p"].close()
     out = Path(ctx.out_dir)
     result.save(out / "gaussians.npz")
     _preview(out / "repair_preview.png", facts["cache"])

@@ -4,11 +4,22 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from go_core.densify import DensifyConfig, DensifyStrategy
 from go_core.gaussians import Gaussians
 from go_core.optim import GaussianOptimizer, LearningRates
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
 
 EXTENT = 1.0
 

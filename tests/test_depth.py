@@ -10,6 +10,15 @@ from go_core.depth_prior import DepthEstimator, load_depth_priors, save_depth_pr
 from go_core.errors import MissingWeightsError
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
 @pytest.fixture(scope="module")
 def tiny_dpt(tmp_path_factory):
     from transformers import DPTConfig, DPTForDepthEstimation, DPTImageProcessor
@@ -66,3 +75,17 @@ def test_depth_artifact_round_trip_and_skip(tmp_path):
     empty = tmp_path / "empty"
     save_depth_priors(empty, [])
     assert load_depth_priors(empty) is None and load_depth_priors(None) is None
+
+
+def test_depth_step_with_a_local_model_writes_one_map_per_training_view(tiny_dpt, tmp_path):
+    from test_coarse_steps import Ctx, _scene
+
+    from go_pipeline.steps import depth
+
+    folder, _ = tiny_dpt
+    inputs = {"scene": _scene(tmp_path)}
+    ctx = Ctx(tmp_path, "depth")
+    depth.run(ctx, inputs, {"model_path": str(folder)})
+    assert ctx.records["status"] == "ok" and ctx.records["kind"] == "disparity"
+    maps = load_depth_priors(ctx.out_dir)
+    assert len(maps) == 4 and all(m.shape == (32, 32) and np.isfinite(m).all() for m in maps)

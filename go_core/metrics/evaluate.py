@@ -70,34 +70,37 @@ class MetricSuite:
         """
         p = torch.from_numpy(np.ascontiguousarray(pred, np.float32)).clamp(0, 1)
         g = torch.from_numpy(np.ascontiguousarray(gt, np.float32)).clamp(0, 1)
-        out: dict = {"psnr": _finite(psnr(p, g)), "ssim": ssim(p, g)}
-        out.update(self._lpips(p, g, None))
+        m = None
         if masked and mask is not None:
             m = torch.from_numpy(np.ascontiguousarray(mask, np.float32))
-            sub = {"psnr": _finite(psnr(p, g, m)), "ssim": ssim(p, g, m)}
-            sub.update(self._lpips(p, g, m))
-            out["masked"] = sub
+        full, masked_lpips = self._lpips(p, g, m)
+        out: dict = {"psnr": _finite(psnr(p, g)), "ssim": ssim(p, g), **full}
+        if m is not None:
+            out["masked"] = {"psnr": _finite(psnr(p, g, m)), "ssim": ssim(p, g, m), **masked_lpips}
         return out
 
-    def _lpips(self, p: torch.Tensor, g: torch.Tensor, mask: torch.Tensor | None) -> dict:
-        vals: dict[str, float | None] = {}
+    def _lpips(self, p: torch.Tensor, g: torch.Tensor, mask: torch.Tensor | None) -> tuple[dict, dict]:
+        """Full-image LPIPS values and, with ``mask``, the mask-weighted means of the spatial maps (one
+        backbone pass for both)."""
+        full: dict[str, float | None] = {}
+        part: dict[str, float | None] = {}
         a = p.permute(2, 0, 1)[None] * 2 - 1
         b = g.permute(2, 0, 1)[None] * 2 - 1
         for net in LPIPS_NETS:
             model = self.lpips.get(net)
+            full[f"lpips_{net}"] = part[f"lpips_{net}"] = None
             if model is None or min(p.shape[0], p.shape[1]) < LPIPS_MIN_SIZE[net]:
-                vals[f"lpips_{net}"] = None
                 continue
             with torch.no_grad():
-                if mask is None:
-                    vals[f"lpips_{net}"] = float(model(a, b)[0])
-                else:
-                    dmap = model(a, b, spatial=True)[0, 0].double()
-                    w = mask.double()
-                    vals[f"lpips_{net}"] = float((dmap * w).sum() / w.sum().clamp_min(1e-12))
-        vgg = vals.get("lpips_vgg")
-        vals["lpips_star"] = None if vgg is None else 100.0 * vgg
-        return vals
+                dist, dmap = model.distance_and_map(a, b, spatial=mask is not None)
+            full[f"lpips_{net}"] = float(dist[0])
+            if mask is not None:
+                w = mask.double()
+                part[f"lpips_{net}"] = float((dmap[0, 0].double() * w).sum() / w.sum().clamp_min(1e-12))
+        for vals in (full, part):
+            vgg = vals.get("lpips_vgg")
+            vals["lpips_star"] = None if vgg is None else 100.0 * vgg
+        return full, part
 
 
 def _finite(x: float) -> float | None:

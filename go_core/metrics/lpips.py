@@ -99,15 +99,22 @@ class LPIPS(nn.Module):
     def forward(self, x0: torch.Tensor, x1: torch.Tensor, spatial: bool = False) -> torch.Tensor:
         """Distance per batch item [B] for inputs in [-1, 1]; ``spatial``: the per-layer maps upsampled to the
         input size and summed, [B,1,H,W] (an error map)."""
-        total = None
+        dist, dmap = self.distance_and_map(x0, x1, spatial)
+        return dmap if spatial else dist
+
+    def distance_and_map(
+        self, x0: torch.Tensor, x1: torch.Tensor, spatial: bool = True
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(distance [B], spatial map [B,1,H,W] or None) from one pass through the backbone."""
+        dist, dmap = None, None
         for f0, f1, lin in zip(self.features(x0), self.features(x1), self.lin, strict=True):
             d = lin((_unit(f0) - _unit(f1)) ** 2)
+            layer = d.mean(dim=(2, 3)).view(-1)
+            dist = layer if dist is None else dist + layer
             if spatial:
-                d = F.interpolate(d, size=x0.shape[-2:], mode="bilinear", align_corners=False)
-            else:
-                d = d.mean(dim=(2, 3)).view(-1)
-            total = d if total is None else total + d
-        return total
+                up = F.interpolate(d, size=x0.shape[-2:], mode="bilinear", align_corners=False)
+                dmap = up if dmap is None else dmap + up
+        return dist, dmap
 
 
 def _unit(feat: torch.Tensor, eps: float = 1e-10) -> torch.Tensor:
