@@ -1,18 +1,22 @@
 """Rasterizer benchmark: forward and forward+backward time, peak memory, Gaussian-pixel evaluations/s.
 
     python benchmarks/rasterizer.py [--json OUT.json] [--cases 10k_256,50k_256] [--backends cpu,reference]
-                                    [--repeats 5]
+                                    [--repeats 5] [--ref-cases 10k_256,50k_256]
 
 Cases (N Gaussians, image size): 10k_256, 50k_256, 50k_512, 200k_512, each a synthetic object
 (go_core.render.synthetic.benchmark_scene: screen-space sigma 1-8 px, SH degree 3, one camera).
-Every (case, backend) runs in a fresh subprocess so that ``peak_mb`` (peak resident memory above the
-process's footprint just before the first render; GPU: torch.cuda.max_memory_allocated) is not polluted
-by the previous run. ``fwd_ms`` is the forward pass with gradients enabled (as in training), ``fwdbwd_ms``
-forward + backward of a loss on rgb, alpha and depth (``*_cpu_ms``: the same in CPU time of all threads,
-meaningful when other processes share the cores); medians over ``--repeats`` runs after one
-warm-up (reference: ``--ref-repeats`` runs, no warm-up). ``evals_per_s`` = tile-Gaussian pairs x 256
-pixels / forward seconds. The reference backend is skipped where its run would exceed --ref-budget-s
-(estimated from its throughput on the first case); its memory stays bounded (chunks are checkpointed).
+Every (case, backend) runs in a fresh subprocess.
+
+* ``fwd_ms``: forward pass with gradients enabled (as in training); ``fwdbwd_ms``: forward + backward of
+  a loss on rgb, alpha and depth. Medians over ``--repeats`` runs after one warm-up (reference:
+  ``--ref-repeats`` runs, no warm-up). ``*_cpu_ms``: the same in CPU time of all threads, meaningful
+  when other processes share the cores.
+* ``peak_mb``: peak resident memory above the footprint just before the first render (Linux's
+  resettable VmHWM; GPU: torch.cuda.max_memory_allocated).
+* ``evals_per_s``: tile-Gaussian pairs x 256 pixels / forward seconds.
+
+The reference backend runs only on ``--ref-cases`` and where its estimated time (from the first case)
+stays under ``--ref-budget-s``; its memory is bounded (checkpointed chunks), it is only slow.
 """
 
 from __future__ import annotations
@@ -40,11 +44,33 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+def _reset_peak_rss() -> None:
+    """Reset the kernel's resident-set high-water mark (VmHWM) of this process (Linux >= 4.0)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+
+
+def _peak_rss_mb() -> float:
+    """VmHWM of this process since the last reset; falls back to ru_maxrss."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def measure(case: str, backend: str, repeats: int) -> dict:
     """Run one (case, backend) in this process and return its record."""
     import torch
 
     from go_core.render import render
+    from go_core.render.projection import project_gaussians
     from go_core.render.synthetic import benchmark_scene
     from go_core.render.tiles import bin_gaussians
 
@@ -67,13 +93,7 @@ def measure(case: str, backend: str, repeats: int) -> dict:
     def loss(out):
         return out.rgb.square().sum() + out.alpha.sum() + 0.1 * out.depth.sum()
 
-    with torch.no_grad():  # pairs evaluated per forward (same binning for every backend)
-        out = render(*scene, size, size, sh_degree=3, backend="reference" if device == "cpu" else backend)
-        bins = bin_gaussians(
-            out.means2d[0].cpu(), out.means2d.new_zeros(n).cpu(), out.radii[0].cpu(), size, size
-        )
-        pairs = int(bins.gauss_ids.numel())
-        del out
+    _reset_peak_rss()
     base = _rss_mb()
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
@@ -99,7 +119,12 @@ def measure(case: str, backend: str, repeats: int) -> dict:
     if device == "cuda":
         peak = torch.cuda.max_memory_allocated() / 2**20
     else:
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024 - base
+        peak = _peak_rss_mb() - base
+    with torch.no_grad():  # tile-Gaussian pairs per forward (the binning every CPU backend uses)
+        proj = project_gaussians(*[t.cpu() for t in scene], size, size, sh_degree=3)
+        pairs = int(
+            bin_gaussians(proj.means2d[0], proj.depths[0], proj.radii[0], size, size).gauss_ids.numel()
+        )
     f = statistics.median(fwd)
     return {
         "case": case,
@@ -124,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--ref-repeats", type=int, default=1)
     ap.add_argument("--ref-budget-s", type=float, default=300.0)
+    ap.add_argument("--ref-cases", default="10k_256,50k_256", help="cases the reference runs on ('all')")
     ap.add_argument("--worker", nargs=2, metavar=("CASE", "BACKEND"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
@@ -144,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
         if case not in CASES:
             ap.error(f"unknown case {case!r}; choose from {', '.join(CASES)}")
         for backend in backends:
+            if backend == "reference" and args.ref_cases != "all" and case not in args.ref_cases.split(","):
+                print(f"{case:9s} reference  skipped (not in --ref-cases)", flush=True)
+                continue
             if backend == "reference" and ref_rate is not None:
                 est = CASES[case][0] * ref_rate * (args.ref_repeats + 1)  # repeats + probe
                 if est > args.ref_budget_s:

@@ -1,7 +1,7 @@
 """A reusable 3DGS optimisation loop (the coarse stage; the leave-one-out and repair stages build on it).
 
     from go_core.training import CoarseConfig, TrainView, optimize
-    views = TrainView.from_scene_views(scene.train, masks=..., depths=...)
+    views = [TrainView.from_arrays(v.camera, v.image, mask) for v, mask in zip(scene.train, masks)]
     gaussians, stats = optimize(init_gaussians, views, CoarseConfig(iterations=10_000),
                                 generator=torch.Generator().manual_seed(seed),
                                 checkpoint=CheckpointSpec(ctx.checkpoint_dir, every=500))

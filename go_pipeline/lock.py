@@ -47,6 +47,21 @@ class WorkdirLock:
         self._fd = fd
         return self
 
+    def holder(self) -> str | None:
+        """The pid recorded by the run holding the lock, or None when no run holds it (never blocks)."""
+        try:
+            fd = os.open(self.path, os.O_RDONLY)
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return None
+        except BlockingIOError:
+            return os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "?"
+        finally:
+            os.close(fd)
+
     @property
     def fd(self) -> int | None:
         return self._fd

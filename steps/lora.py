@@ -8,8 +8,9 @@ every ``checkpoint_every`` steps; a killed step resumes from the newest one.
 
 Weights come from local paths (params ``sd15_path``, ``controlnet_path``, optional ``clip_path`` /
 ``single_file_config``, or $GO_SD15_PATH / $GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG).
-Without them the step does not fake anything: ``lora.json`` says ``{"status": "skipped", "reason": ...}``
-and the repair step (and so the report) falls back to the coarse model.
+When none is configured the step does not fake anything: ``lora.json`` says ``{"status": "skipped",
+"reason": ...}`` and the repair step (and so the report) falls back to the coarse model. Paths that are
+given but wrong or unreadable raise MissingWeightsError (a user error, never a silent skip).
 ``finetune: false`` is the "no fine-tuning" ablation: ``status: "pretrained"`` (the repair step then uses the
 pretrained ControlNet without LoRA).
 
@@ -48,9 +49,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     paths = WeightPaths.resolve(params)
     weights = paths.describe()
     problems = missing_weights(paths)
-    if problems:
+    if problems and not (paths.sd15 or paths.controlnet):  # nothing configured: skip honestly
         _skip(ctx, "repair model weights missing: " + " | ".join(problems), weights=weights)
         return
+    if problems:  # configured but wrong: a user error, not a silent skip
+        raise MissingWeightsError("repair model weights: " + " | ".join(problems))
     prompt = str(params.get("prompt", "a photo of xxy5syt00"))
     if not params.get("finetune", True):
         atomic_write_json(
@@ -67,11 +70,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     device = str(ctx.device)
     weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
-    try:
-        models = load_repair_models(paths, device=device, dtype=weight_dtype)
-    except MissingWeightsError as exc:
-        _skip(ctx, exc.message, weights=weights)
-        return
+    models = load_repair_models(paths, device=device, dtype=weight_dtype)  # unreadable files raise
     spec = LoraSpec(
         rank=int(params.get("rank", 64)),
         alpha=float(params.get("alpha", params.get("rank", 64))),

@@ -93,7 +93,6 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     from go_core.diffusion.lora import add_lora, load_lora_state_dict, read_lora
     from go_core.diffusion.models import (
-        MissingWeightsError,
         WeightPaths,
         load_repair_models,
         precision_dtypes,
@@ -116,11 +115,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     paths = WeightPaths(**lora_info["weights"])
     device = str(ctx.device)
     weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
-    try:
-        models = load_repair_models(paths, device=device, dtype=weight_dtype)
-    except MissingWeightsError as exc:
-        _skip(ctx, exc.message)
-        return
+    models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
     use_lora = bool(params.get("use_lora", True)) and lora_info.get("status") == "ok"
     if use_lora:
         spec, state = read_lora(Path(inputs["lora"]) / lora_info["lora"])

@@ -141,3 +141,20 @@ def test_estimate_poses_with_sfm(shared_data):
     for n in names:
         Rrel = given[n].world_to_cam[:3, :3] @ R @ cams[n].world_to_cam[:3, :3].T
         assert np.degrees(np.arccos(np.clip((np.trace(Rrel) - 1) / 2, -1, 1))) < 2.0
+
+
+def test_blame_logic_for_disagreeing_pairs():
+    from go_core.posecheck import _blame_inconsistent_pairs
+
+    ok = {(0, 1): None, (1, 2): None, (0, 2): None}
+    # view 3 disagrees with 0, 1 and 2, which agree with each other: only 3 is blamed
+    errs = {**dict.fromkeys(ok, 0.2), (0, 3): 9.0, (1, 3): 8.0, (2, 3): 7.0}
+    assert _blame_inconsistent_pairs(4, errs, ok, 1) == {3: False}
+    # an isolated disagreeing pair (4, 5): cannot tell which one, both flagged as ambiguous
+    errs[(4, 5)] = 6.0
+    assert _blame_inconsistent_pairs(6, errs, ok, 1) == {3: False, 4: True, 5: True}
+    # a disagreeing pair between two well-supported views (repeated texture) blames nobody
+    assert (
+        _blame_inconsistent_pairs(3, {**dict.fromkeys(ok, 0.2), (0, 1): 5.0}, {(1, 2): None, (0, 2): None}, 1)
+        == {}
+    )

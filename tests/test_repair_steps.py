@@ -86,6 +86,16 @@ def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_pat
     assert used == "coarse" and path == dirs["coarse"] / "gaussians.npz"
 
 
+def test_configured_but_wrong_weights_raise_one_clear_error(upstream, tmp_path):
+    from go_core.errors import MissingWeightsError
+
+    _, dirs, weights = upstream
+    with pytest.raises(MissingWeightsError) as err:
+        _lora(tmp_path, dirs, {**weights, "controlnet_path": str(tmp_path / "typo")})
+    assert str(tmp_path / "typo") in str(err.value) and "control_v11f1e_sd15_tile" in str(err.value)
+    assert "\n" not in str(err.value)
+
+
 def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monkeypatch):
     from go_core.diffusion.lora import read_lora
     from go_core.repair import tuning

@@ -214,6 +214,8 @@ def test_lock_stops_a_second_run(toy):
             "work dir; wait for it to finish"
         )
         assert not (wd / "artifacts").exists()
+        assert WorkdirLock(wd).holder() == str(os.getpid())  # what `status` reports
+    assert WorkdirLock(wd).holder() is None
     assert run(toy).ran == ALL  # the lock is released
 
 

@@ -23,7 +23,7 @@ import torch
 from go_core.errors import MissingWeightsError
 from go_core.metrics.lpips import LPIPS
 from go_core.metrics.psnr import psnr
-from go_core.metrics.ssim import ssim
+from go_core.metrics.ssim import reduce_ssim_map, ssim_metric_map
 
 LPIPS_NETS = ("vgg", "alex")
 LPIPS_MIN_SIZE = {"alex": 32, "vgg": 16}  # smaller images vanish in the backbone's pooling: no value
@@ -74,9 +74,10 @@ class MetricSuite:
         if masked and mask is not None:
             m = torch.from_numpy(np.ascontiguousarray(mask, np.float32))
         full, masked_lpips = self._lpips(p, g, m)
-        out: dict = {"psnr": _finite(psnr(p, g)), "ssim": ssim(p, g), **full}
+        smap = ssim_metric_map(p, g)
+        out: dict = {"psnr": _finite(psnr(p, g)), "ssim": reduce_ssim_map(smap), **full}
         if m is not None:
-            out["masked"] = {"psnr": _finite(psnr(p, g, m)), "ssim": ssim(p, g, m), **masked_lpips}
+            out["masked"] = {"psnr": _finite(psnr(p, g, m)), "ssim": reduce_ssim_map(smap, m), **masked_lpips}
         return out
 
     def _lpips(self, p: torch.Tensor, g: torch.Tensor, mask: torch.Tensor | None) -> tuple[dict, dict]:

@@ -22,7 +22,11 @@ def ssim(
     pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None, border: str = "pad"
 ) -> float:
     """Mean SSIM of two [H,W,3] images; with ``mask`` [H,W], the mask-weighted mean of the SSIM map."""
-    smap = ssim_metric_map(pred, target)
+    return reduce_ssim_map(ssim_metric_map(pred, target), mask, border)
+
+
+def reduce_ssim_map(smap: torch.Tensor, mask: torch.Tensor | None = None, border: str = "pad") -> float:
+    """Mean (or mask-weighted mean) of an SSIM map [H,W] under the ``border`` convention."""
     if border == "valid":
         r = SSIM_WINDOW // 2
         smap = smap[r:-r, r:-r]

@@ -27,6 +27,10 @@ def main(args: argparse.Namespace) -> int:
         seed=args.seed,
         pipeline_path=args.pipeline,
     )
+    from go_pipeline import store
+    from go_pipeline.lock import WorkdirLock
+
+    running = WorkdirLock(store.workdir_for(args.scene, args.workdir)).holder()
     if args.json:
         print(json.dumps([row.__dict__ for row in rows], indent=2))
         return 0
@@ -34,6 +38,8 @@ def main(args: argparse.Namespace) -> int:
     for r in rows:
         why = f"  ({r.reason})" if r.reason else ""
         print(f"{r.step:<{width}}  {r.state:<7}{why}")
+    if running is not None:
+        print(f"(a go-pipeline run, pid {running}, is working on this scene now)")
     stale = sum(r.state != "fresh" for r in rows)
     print(f"{len(rows) - stale} fresh, {stale} to run" if stale else "everything is up to date")
     return 0
