@@ -108,7 +108,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     from go_core.gaussians import Gaussians
     from go_core.scene.artifact import load_scene_artifact
-    from steps._common import final_model_path
+    from go_pipeline.steps._common import final_model_path
 
     scene = load_scene_artifact(inputs["scene"])
     if not scene.test:

@@ -69,7 +69,7 @@ def test_noise_pairs_step_fixes_config(upstream):
 
 def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_path):
     from steps import repair
-    from steps._common import final_model_path
+    from go_pipeline.steps._common import final_model_path
 
     _, dirs, _ = upstream
     ctx = _lora(tmp_path, dirs, {})
@@ -133,7 +133,7 @@ def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
     from go_core.repair.arcs import RepairArcs
     from go_core.scene.artifact import load_scene_artifact
     from steps import repair
-    from steps._common import final_model_path
+    from go_pipeline.steps._common import final_model_path
 
     _, dirs, weights = upstream
     lctx = _lora(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})
