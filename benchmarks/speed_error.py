@@ -221,6 +221,14 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME:STEP.PARAM=V;...",
         help="an extra override set compared with the full pipeline (repeatable)",
     )
+    ap.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="STEP.PARAM=VALUE",
+        help="a fixed override for every configuration (repeatable)",
+    )
     ap.add_argument("--profile", default=None)
     ap.add_argument("--pipeline", default=None)
     ap.add_argument("--until", default="eval")
@@ -236,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
     grid = parse_grid(args.grid or ["coarse.iterations=300,1000,3000", "scene.max_size=100,200"])
     ablations = parse_ablations(["no_floaters:coarse.floaters=false"] if defaults else args.ablation)
     configs = configurations(grid, ablations)
+    fixed = {k: v[0] for k, v in parse_grid(args.sets).items()} if args.sets else {}
+    for cfg in configs:
+        cfg["overrides"] = {**fixed, **cfg["overrides"]}
     args.out.mkdir(parents=True, exist_ok=True)
     workdir = args.workdir or (args.out / "work")
     print(f"{len(configs)} configurations on {args.scene}", flush=True)
@@ -251,6 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         "version": 1,
         "scene": str(args.scene),
         "grid": grid,
+        "fixed": fixed,
         "profile": args.profile,
         "points": points,
         "pareto": fronts,

@@ -8,6 +8,9 @@ from __future__ import annotations
 import ast
 import importlib.util
 import math
+import os
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,7 +76,9 @@ class Pipeline:
     ) -> dict[str, dict[str, Any]]:
         """Defaults, then the profile's overrides, then ``overrides``.
 
-        ``overrides``: {"step.param": value} or {step: {param: value}}."""
+        ``overrides``: {"step.param": value} or {step: {param: value}}. String values then have
+        ``${NAME}`` / ``${NAME:-default}`` replaced from the environment, so a setting taken from the
+        environment (e.g. a weights folder) is part of the cache key like any other param."""
         params = {name: dict(spec.params) for name, spec in self.steps.items()}
         if profile is not None:
             if profile not in self.profiles:
@@ -86,7 +91,7 @@ class Pipeline:
             what = f"--set {dotted}={_show(value)}"
             step, param = self._split_dotted(dotted, what)
             params[step][param] = check_param_type(self.steps[step].params[param], value, what, self.path)
-        return params
+        return {step: {k: expand_env(v) for k, v in values.items()} for step, values in params.items()}
 
     def _split_dotted(self, dotted: str, what: str) -> tuple[str, str]:
         step, sep, param = dotted.partition(".")
@@ -97,6 +102,19 @@ class Pipeline:
             known = ", ".join(spec.params) or "none"
             raise PipelineError(f"{what}: step {step!r} has no param {param!r} (params: {known})", self.path)
         return step, param
+
+
+_ENV_REF = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
+
+
+def expand_env(value: Any, environ: Mapping[str, str] | None = None) -> Any:
+    """Replace ``${NAME}`` and ``${NAME:-default}`` in a string param (other values pass through).
+
+    An unset ``${NAME}`` without a default becomes the empty string, as in the shell."""
+    if not isinstance(value, str) or "${" not in value:
+        return value
+    env = os.environ if environ is None else environ
+    return _ENV_REF.sub(lambda m: env.get(m.group(1)) or (m.group(2) or ""), value)
 
 
 def flatten_overrides(overrides: dict[str, Any]) -> dict[str, Any]:

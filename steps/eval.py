@@ -104,11 +104,11 @@ def evaluate_scene(scene, renders: list[np.ndarray], suite: MetricSuite, masked:
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    from go_pipeline.steps._common import final_model_path
     from PIL import Image
 
     from go_core.gaussians import Gaussians
     from go_core.scene.artifact import load_scene_artifact
-    from go_pipeline.steps._common import final_model_path
 
     scene = load_scene_artifact(inputs["scene"])
     if not scene.test:

@@ -20,6 +20,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 from go_core.errors import SceneError
 from go_core.gaussians import Gaussians
@@ -47,6 +48,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     from go_core.repair.data import training_views
     from go_core.training import scene_extent
 
+    missing = repair_weights_missing(inputs)
+    if missing:  # no repair model: the pairs would never be used, so don't pay for N coarse runs
+        write_skipped(ctx, "loo.json", missing)
+        write_npz_deterministic(Path(ctx.out_dir) / "loo_pairs.npz", {})
+        return
     scene, views = training_views(inputs["scene"], inputs.get("mask"))
     if len(views) < 2:
         raise SceneError(f"leave-one-out needs at least 2 training views, got {len(views)}", inputs["scene"])

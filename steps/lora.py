@@ -6,11 +6,11 @@ MSE with the degraded image as ControlNet condition and the clean reference as t
 Pairs: Algorithm 1 (noise pairs on the fly, else leave-one-out pairs). Checkpoints into ctx.checkpoint_dir
 every ``checkpoint_every`` steps; a killed step resumes from the newest one.
 
-Weights come from local paths (params ``sd15_path``, ``controlnet_path``, optional ``clip_path`` /
-``single_file_config``, or $GO_SD15_PATH / $GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG).
-When none is configured the step does not fake anything: ``lora.json`` says ``{"status": "skipped",
-"reason": ...}`` and the repair step (and so the report) falls back to the coarse model. Paths that are
-given but wrong or unreadable raise MissingWeightsError (a user error, never a silent skip).
+Weights come from the ``weights`` step (local paths from its params or $GO_SD15_PATH /
+$GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG). When none is configured the step does not fake
+anything: ``lora.json`` says ``{"status": "skipped", "reason": ...}`` and the repair step (and so the report)
+falls back to the coarse model. Paths given but wrong already failed in the weights step
+(MissingWeightsError); files that exist but cannot be loaded raise here.
 ``finetune: false`` is the "no fine-tuning" ablation: ``status: "pretrained"`` (the repair step then uses the
 pretrained ControlNet without LoRA).
 
@@ -23,22 +23,18 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from go_core.errors import MissingWeightsError
+from go_pipeline.steps._common import repair_weights_missing, write_skipped
+from go_pipeline.steps.weights import weight_paths
+
 from go_core.io.atomic import atomic_write_json
 
 VERSION = "1"
 
 
-def _skip(ctx, reason: str, **extra) -> None:
-    atomic_write_json(Path(ctx.out_dir) / "lora.json", {"status": "skipped", "reason": reason, **extra})
-    ctx.record(status="skipped", reason=reason)
-    ctx.log.warning("lora skipped: %s", reason)
-
-
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
-    from go_core.diffusion.models import WeightPaths, load_repair_models, missing_weights, precision_dtypes
+    from go_core.diffusion.models import load_repair_models, precision_dtypes
     from go_core.diffusion.sampler import RepairDiffusion
     from go_core.gaussians import Gaussians
     from go_core.repair.data import training_views
@@ -46,14 +42,12 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     from go_core.repair.pairs import LooPairs, PairSource
     from go_core.repair.tuning import TuneSettings, tune
 
-    paths = WeightPaths.resolve(params)
-    weights = paths.describe()
-    problems = missing_weights(paths)
-    if problems and not (paths.sd15 or paths.controlnet):  # nothing configured: skip honestly
-        _skip(ctx, "repair model weights missing: " + " | ".join(problems), weights=weights)
+    missing = repair_weights_missing(inputs)
+    if missing:  # nothing configured: skip honestly (wrong paths already failed in the weights step)
+        write_skipped(ctx, "lora.json", missing, weights=weight_paths(inputs).describe())
         return
-    if problems:  # configured but wrong: a user error, not a silent skip
-        raise MissingWeightsError("repair model weights: " + " | ".join(problems))
+    paths = weight_paths(inputs)
+    weights = paths.describe()
     prompt = str(params.get("prompt", "a photo of xxy5syt00"))
     if not params.get("finetune", True):
         atomic_write_json(

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write, atomic_write_json
@@ -35,6 +36,10 @@ def _thumb(img: np.ndarray, size: int) -> np.ndarray:
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    missing = repair_weights_missing(inputs)
+    if missing:
+        write_skipped(ctx, "noise_pairs.json", missing)
+        return
     loo = json.loads((Path(inputs["loo"]) / "loo.json").read_text())
     stats = NoiseStats.from_json(loo["stats"])
     coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")

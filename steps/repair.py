@@ -23,16 +23,12 @@ import json
 from dataclasses import fields
 from pathlib import Path
 
+from go_pipeline.steps._common import write_skipped
+
 from go_core.errors import GoError
 from go_core.io.atomic import atomic_write, atomic_write_json
 
 VERSION = "1"
-
-
-def _skip(ctx, reason: str) -> None:
-    atomic_write_json(Path(ctx.out_dir) / "repair.json", {"status": "skipped", "reason": reason})
-    ctx.record(status="skipped", reason=reason)
-    ctx.log.warning("repair skipped: %s (the coarse model is the result)", reason)
 
 
 def _lpips(net: str, weight: float):
@@ -106,11 +102,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     if mode not in ("full", "no_repair"):
         raise GoError(f"repair.mode must be 'full' or 'no_repair', got {mode!r}")
     if mode == "no_repair":
-        _skip(ctx, "ablation: no repair (mode no_repair)")
+        write_skipped(ctx, "repair.json", "ablation: no repair (mode no_repair)")
         return
     lora_info = json.loads((Path(inputs["lora"]) / "lora.json").read_text())
     if lora_info.get("status") == "skipped":
-        _skip(ctx, f"lora step skipped: {lora_info.get('reason', 'no reason given')}")
+        write_skipped(ctx, "repair.json", f"lora step skipped: {lora_info.get('reason', 'no reason given')}")
         return
     paths = WeightPaths(**lora_info["weights"])
     device = str(ctx.device)

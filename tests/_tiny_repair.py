@@ -87,6 +87,31 @@ def _ring(prefix: str, azimuths, elevation: float, size: int):
     return cams
 
 
+WEIGHT_KEYS = ("sd15_path", "controlnet_path", "clip_path", "single_file_config")
+
+
+def weights_artifact(out: Path, status: str = "ok", paths: dict[str, str] | None = None) -> Path:
+    """A ``weights`` step artifact as loo/noise_pairs read it (they look only at ``status``)."""
+    import json
+
+    out.mkdir(parents=True, exist_ok=True)
+    names = {"sd15_path": "sd15", "controlnet_path": "controlnet", "clip_path": "clip"}
+    described = {names.get(k, k): (paths or {}).get(k, "") for k in WEIGHT_KEYS}
+    reason = "" if status == "ok" else "repair model weights missing (test)"
+    info = {"status": status, "reason": reason, "paths": described}
+    (out / "weights.json").write_text(json.dumps(info))
+    return out
+
+
+def run_weights_step(root: Path, params: dict) -> Path:
+    """Run the real ``weights`` step on the weight-path keys of ``params``; returns its artifact dir."""
+    from go_pipeline.steps import weights
+
+    ctx = FakeCtx(root, "weights")
+    weights.run(ctx, {}, {k: params.get(k, "") for k in WEIGHT_KEYS})
+    return ctx.out_dir
+
+
 def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path]:
     """Scene, mask, hull and coarse artifacts (4 train + 2 test views of a coloured blob) in ``root``."""
     import numpy as np
@@ -118,6 +143,7 @@ def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path
         views(_ring("test", [75, 165], 40, size)),
     )
     dirs = {"scene": root / "scene", "mask": root / "mask", "hull": root / "hull", "coarse": root / "coarse"}
+    dirs["weights"] = weights_artifact(root / "weights_ok", status="ok")
     save_scene_artifact(scene, dirs["scene"])
     save_masks(dirs["mask"], [v.mask for v in scene.train])
     hull = Gaussians.from_points(pts * 1.2, torch.full((n, 3), 0.5), torch.full((n,), 0.1), 0.1, 1)

@@ -24,7 +24,7 @@ def _threads():
 @pytest.fixture(scope="module")
 def done(tmp_path_factory):
     """Inputs and one uninterrupted loo run."""
-    from steps import loo
+    from go_pipeline.steps import loo
 
     root = tmp_path_factory.mktemp("loo")
     with one_thread():
@@ -61,8 +61,9 @@ def test_loo_pairs_and_statistics(done):
 
 
 def test_killed_loo_resumes_without_redoing_finished_runs(done, tmp_path, monkeypatch):
+    from go_pipeline.steps import loo
+
     from go_core.repair import loo as core
-    from steps import loo
 
     _, dirs, first = done
     calls: list[int] = []
@@ -88,7 +89,7 @@ def test_killed_loo_resumes_without_redoing_finished_runs(done, tmp_path, monkey
 
 @pytest.mark.slow
 def test_parallel_workers_give_the_same_artifacts(done, tmp_path):
-    from steps import loo
+    from go_pipeline.steps import loo
 
     _, dirs, first = done
     ctx = FakeCtx(tmp_path, "loo")

@@ -55,7 +55,7 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
         monkeypatch.delenv(var, raising=False)
     weights = tiny_weights(tmp_path / "weights")
     work = tmp_path / "work"
-    with_weights = {**TEST_OVERRIDES, **{f"lora.{k}": v for k, v in weights.items()}}
+    with_weights = {**TEST_OVERRIDES, **{f"weights.{k}": v for k, v in weights.items()}}
     summary = run_pipeline(EXAMPLE, workdir=work, overrides=with_weights, quiet=True)
     steps = {s.name: s for s in summary.steps}
     for name in ("loo", "noise_pairs", "lora", "repair", "eval"):
@@ -65,11 +65,13 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     assert metrics["model"] == "repair"
     assert (steps["repair"].artifact_dir / "gaussians.npz").is_file()
 
-    # Without weights: the upstream steps are cached, lora and repair skip with the message, eval uses coarse.
+    # Without weights: coarse is cached, the whole repair chain skips with the message, eval uses coarse.
     summary = run_pipeline(EXAMPLE, workdir=work, overrides=TEST_OVERRIDES, quiet=True)
     steps = {s.name: s for s in summary.steps}
-    assert steps["loo"].status == "cached" and steps["noise_pairs"].status == "cached"
-    assert steps["lora"].status == "skipped" and "Stable Diffusion 1.5" in steps["lora"].record["reason"]
+    assert steps["coarse"].status == "cached"
+    for name in ("loo", "noise_pairs", "lora"):
+        assert steps[name].status == "skipped", name
+    assert "Stable Diffusion 1.5" in steps["lora"].record["reason"]
     assert steps["repair"].status == "skipped"
     assert not (steps["repair"].artifact_dir / "gaussians.npz").exists()
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())

@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from tests._tiny_repair import FakeCtx, one_thread, synthetic_inputs, tiny_weights
+from tests._tiny_repair import (
+    WEIGHT_KEYS,
+    FakeCtx,
+    one_thread,
+    run_weights_step,
+    synthetic_inputs,
+    tiny_weights,
+)
 
 LOO = {"phase1_iterations": 12, "phase2_iterations": 6, "renders": 2, "checkpoint_every": 0}
 LORA = {"rank": 4, "alpha": 4.0, "steps": 6, "resolution": 64, "checkpoint_every": 2}
@@ -35,7 +42,7 @@ def _threads(monkeypatch):
 @pytest.fixture(scope="module")
 def upstream(tmp_path_factory):
     """Inputs, loo and noise_pairs artifacts, and tiny weights."""
-    from steps import loo, noise_pairs
+    from go_pipeline.steps import loo, noise_pairs
 
     root = tmp_path_factory.mktemp("repair_steps")
     with one_thread():
@@ -51,10 +58,12 @@ def upstream(tmp_path_factory):
 
 
 def _lora(root, dirs, params, name="lora"):
-    from steps import lora
+    """The weights step on the weight paths in ``params``, then the lora step on the rest."""
+    from go_pipeline.steps import lora
 
+    weights = run_weights_step(root / f"{name}_weights", params)
     ctx = FakeCtx(root, name)
-    lora.run(ctx, dirs, params)
+    lora.run(ctx, {**dirs, "weights": weights}, {k: v for k, v in params.items() if k not in WEIGHT_KEYS})
     return ctx
 
 
@@ -68,7 +77,7 @@ def test_noise_pairs_step_fixes_config(upstream):
 
 
 def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_path):
-    from steps import repair
+    from go_pipeline.steps import repair
     from go_pipeline.steps._common import final_model_path
 
     _, dirs, _ = upstream
@@ -129,11 +138,12 @@ def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monke
 
 
 def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
+    from go_pipeline.steps import repair
+    from go_pipeline.steps._common import final_model_path
+
     from go_core.diffusion.configs import SD15_SCHEDULER
     from go_core.repair.arcs import RepairArcs
     from go_core.scene.artifact import load_scene_artifact
-    from steps import repair
-    from go_pipeline.steps._common import final_model_path
 
     _, dirs, weights = upstream
     lctx = _lora(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})
@@ -172,7 +182,7 @@ def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
 
 
 def test_ablations_no_finetune_and_no_repair(upstream, tmp_path):
-    from steps import repair
+    from go_pipeline.steps import repair
 
     _, dirs, weights = upstream
     lctx = _lora(tmp_path, dirs, {**weights, **LORA, "finetune": False})

@@ -1,0 +1,58 @@
+"""The `weights` step gates the repair chain: without weights nothing after coarse does real work."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from go_pipeline.pipeline import expand_env, load_pipeline
+from tests._tiny_repair import FakeCtx, run_weights_step, weights_artifact
+
+
+def test_no_weights_configured_records_missing_with_how_to_get_them(tmp_path):
+    out = run_weights_step(tmp_path, {})
+    info = json.loads((out / "weights.json").read_text())
+    assert info["status"] == "missing"
+    assert "Stable Diffusion 1.5" in info["reason"] and "GO_SD15_PATH" in info["reason"]
+
+
+def test_wrong_weight_path_is_an_error_not_a_skip(tmp_path):
+    from go_core.errors import MissingWeightsError
+
+    with pytest.raises(MissingWeightsError, match=str(tmp_path / "nowhere")):
+        run_weights_step(tmp_path, {"sd15_path": str(tmp_path / "nowhere")})
+
+
+def test_loo_and_noise_pairs_skip_without_reading_anything_else(tmp_path):
+    from go_pipeline.steps import loo, noise_pairs
+
+    # Only the weights artifact exists: a step that tried to read the scene or the models would fail.
+    dirs = {"weights": weights_artifact(tmp_path / "w", status="missing")}
+    ctx = FakeCtx(tmp_path, "loo")
+    loo.run(ctx, dirs, {})
+    assert json.loads((ctx.out_dir / "loo.json").read_text())["status"] == "skipped"
+    with np.load(ctx.out_dir / "loo_pairs.npz") as pairs:
+        assert len(pairs.files) == 0
+    assert ctx.records["status"] == "skipped" and "missing" in ctx.records["reason"]
+    nctx = FakeCtx(tmp_path, "noise_pairs")
+    noise_pairs.run(nctx, {**dirs, "loo": ctx.out_dir}, {})
+    assert json.loads((nctx.out_dir / "noise_pairs.json").read_text())["status"] == "skipped"
+
+
+def test_env_references_in_params_expand_like_the_shell():
+    env = {"A": "/models/sd", "EMPTY": ""}
+    assert expand_env("${A}/unet", env) == "/models/sd/unet"
+    assert expand_env("${UNSET:-fallback}", env) == "fallback"
+    assert expand_env("${EMPTY:-fallback}", env) == "fallback"
+    assert expand_env("${UNSET}", env) == ""
+    assert expand_env(5, env) == 5 and expand_env("plain $A", env) == "plain $A"
+
+
+def test_weights_from_the_environment_are_part_of_the_resolved_params(monkeypatch):
+    pipeline = load_pipeline()
+    monkeypatch.delenv("GO_SD15_PATH", raising=False)
+    assert pipeline.resolve_params()["weights"]["sd15_path"] == ""
+    monkeypatch.setenv("GO_SD15_PATH", "/models/sd15")
+    assert pipeline.resolve_params()["weights"]["sd15_path"] == "/models/sd15"
