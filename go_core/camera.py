@@ -37,7 +37,14 @@ class Camera:
 
     @staticmethod
     def from_intrinsics(
-        name: str, width: int, height: int, fx: float, fy: float, cx: float, cy: float, world_to_cam: np.ndarray
+        name: str,
+        width: int,
+        height: int,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        world_to_cam: np.ndarray,
     ) -> Camera:
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         return Camera(name, int(width), int(height), K, np.asarray(world_to_cam, np.float64))
@@ -117,7 +124,13 @@ def look_at_point(cameras: list[Camera]) -> np.ndarray:
 
 
 def look_at(
-    name: str, position: np.ndarray, target: np.ndarray, up: np.ndarray, K: np.ndarray, width: int, height: int
+    name: str,
+    position: np.ndarray,
+    target: np.ndarray,
+    up: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
 ) -> Camera:
     """A camera at ``position`` looking at ``target`` with image-up close to ``up``."""
     fwd = np.asarray(target, np.float64) - np.asarray(position, np.float64)

@@ -102,8 +102,8 @@ def mask_bce(alpha: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torc
     Shapes must broadcast ([C,H,W,1] vs [C,H,W,1] or [C,H,W]). Alpha is clamped to [eps, 1-eps] so the loss
     stays finite where the model is fully opaque or empty.
     """
-    if alpha.shape != mask.shape and alpha.dim() == mask.dim() + 1 and alpha.shape[-1] == 1:
-        alpha = alpha[..., 0]
+    if alpha.shape != mask.shape and alpha.numel() == mask.numel():
+        alpha = alpha.reshape(mask.shape)  # e.g. the renderer's [1,H,W,1] against an [H,W] mask
     a = alpha.clamp(eps, 1.0 - eps)
     return F.binary_cross_entropy(a, mask.to(a.dtype))
 
