@@ -89,24 +89,12 @@ def render(
     _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height)
     width, height = int(width), int(height)
     kind = _resolve_backend(backend, means.device)
+    args = (means, quats, scales, opacities, colors, viewmats, Ks, width, height)
+    options = dict(sh_degree=sh_degree, near_plane=near_plane, far_plane=far_plane, antialiased=antialiased)
     if kind == "cuda":
         from go_core.render.gsplat_backend import render_gsplat
 
-        out = render_gsplat(
-            means,
-            quats,
-            scales,
-            opacities,
-            colors,
-            viewmats,
-            Ks,
-            width,
-            height,
-            sh_degree=sh_degree,
-            near_plane=near_plane,
-            far_plane=far_plane,
-            antialiased=antialiased,
-        )
+        out = render_gsplat(*args, **options)
     else:
         if kind == "reference":
             from go_core.render.projection import project_gaussians as project
@@ -114,34 +102,15 @@ def render(
             if means.device.type != "cpu":
                 raise ValueError(f"backend='cpu' needs CPU tensors, got {means.device}")
             from go_core.render.cpu import project_cpu as project
-        proj = project(
-            means,
-            quats,
-            scales,
-            opacities,
-            colors,
-            viewmats,
-            Ks,
-            width,
-            height,
-            sh_degree=sh_degree,
-            near_plane=near_plane,
-            far_plane=far_plane,
-            antialiased=antialiased,
-        )
+        proj = project(*args, **options)
         feats = torch.cat([proj.colors, proj.depths[..., None]], dim=-1)  # depth as a 4th channel
         if kind == "reference":
-            from go_core.render.reference import rasterize_reference
-
-            acc, alpha = rasterize_reference(
-                proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
-            )
+            from go_core.render.reference import rasterize_reference as rasterize
         else:
-            from go_core.render.cpu import rasterize_cpu
-
-            acc, alpha = rasterize_cpu(
-                proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
-            )
+            from go_core.render.cpu import rasterize_cpu as rasterize
+        acc, alpha = rasterize(
+            proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
+        )
         depth = acc[..., 3:4] / torch.clamp_min(alpha, DEPTH_EPS)
         out = RenderOutput(acc[..., :3], alpha, depth, proj.means2d, proj.radii)
     if background is not None:
