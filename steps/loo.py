@@ -50,7 +50,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     missing = repair_weights_missing(inputs)
     if missing:  # no repair model: the pairs would never be used, so don't pay for N coarse runs
-        write_skipped(ctx, "loo.json", missing)
+        write_skipped(ctx, "loo.json", "repair model weights missing (see the weights step)")
         write_npz_deterministic(Path(ctx.out_dir) / "loo_pairs.npz", {})
         return
     scene, views = training_views(inputs["scene"], inputs.get("mask"))

@@ -38,7 +38,7 @@ def _thumb(img: np.ndarray, size: int) -> np.ndarray:
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     missing = repair_weights_missing(inputs)
     if missing:
-        write_skipped(ctx, "noise_pairs.json", missing)
+        write_skipped(ctx, "noise_pairs.json", "repair model weights missing (see the weights step)")
         return
     loo = json.loads((Path(inputs["loo"]) / "loo.json").read_text())
     stats = NoiseStats.from_json(loo["stats"])
