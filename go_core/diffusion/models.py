@@ -34,20 +34,21 @@ SINGLE_FILE_SUFFIXES = (".ckpt", ".safetensors", ".pth", ".pt", ".bin")
 HOW_TO_GET = {
     "sd15": (
         "Stable Diffusion 1.5: download the diffusers folder 'stable-diffusion-v1-5/stable-diffusion-v1-5' "
-        "(or the single file v1-5-pruned-emaonly.safetensors) on a machine with internet and set "
-        f"params.sd15_path or ${ENV_SD15}"
+        "(or the single file v1-5-pruned-emaonly.safetensors) on a machine with internet, then "
+        f"--set weights.sd15_path=... or ${ENV_SD15}"
     ),
     "controlnet": (
         "ControlNet v1.1 tile: download 'lllyasviel/control_v11f1e_sd15_tile' (diffusers folder, or the "
-        f"single file control_v11f1e_sd15_tile.pth) and set params.controlnet_path or ${ENV_CONTROLNET}"
+        "single file control_v11f1e_sd15_tile.pth), then "
+        f"--set weights.controlnet_path=... or ${ENV_CONTROLNET}"
     ),
     "clip": (
         "CLIP ViT-L/14 text encoder: the SD1.5 folder's text_encoder/ is used; to override, download "
-        f"'openai/clip-vit-large-patch14' and set params.clip_path or ${ENV_CLIP}"
+        f"'openai/clip-vit-large-patch14' then --set weights.clip_path=... or ${ENV_CLIP}"
     ),
     "config": (
         "single-file weights need the diffusers configs offline: give a diffusers-layout folder with the "
-        f"config.json/tokenizer files as params.single_file_config or ${ENV_SINGLE_FILE_CONFIG}"
+        f"config.json/tokenizer files as --set weights.single_file_config=... or ${ENV_SINGLE_FILE_CONFIG}"
     ),
 }
 
