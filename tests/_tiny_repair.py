@@ -1,26 +1,13 @@
-"""Shared helpers for the repair tests: tiny random SD/ControlNet/CLIP weights and a 1-thread torch scope.
-
-(On the shared 2-core machine, torch's default 2 intra-op threads oversubscribe the CPU when other processes
-run, making tiny-model tests ~100x slower; one thread is fast and deterministic.)
-"""
+"""Shared helpers for the repair tests: tiny random SD/ControlNet/CLIP weights, a synthetic object and a
+step context (``one_thread`` is re-exported from tests._threads)."""
 
 from __future__ import annotations
 
-import contextlib
 from pathlib import Path
 
 import torch
 
-
-@contextlib.contextmanager
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
-
+from tests._threads import one_thread  # noqa: F401  (re-exported for the repair tests)
 
 _BUILT: dict[str, dict[str, str]] = {}  # tiny weights already written in this test session (read-only use)
 

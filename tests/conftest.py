@@ -19,3 +19,12 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.fail(f"{SHARED_DATA} is missing: CI and developers have ../shared beside the checkout")
     return SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def single_thread():
+    """Opt in per module with ``pytestmark = pytest.mark.usefixtures("single_thread")``."""
+    from tests._threads import one_thread
+
+    with one_thread():
+        yield

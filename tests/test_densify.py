@@ -11,14 +11,7 @@ from go_core.densify import DensifyConfig, DensifyStrategy
 from go_core.gaussians import Gaussians
 from go_core.optim import GaussianOptimizer, LearningRates
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 EXTENT = 1.0

@@ -9,14 +9,7 @@ import torch
 from go_core.depth_prior import DepthEstimator, load_depth_priors, save_depth_priors
 from go_core.errors import MissingWeightsError
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 @pytest.fixture(scope="module")

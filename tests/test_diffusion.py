@@ -12,7 +12,7 @@ from go_core.diffusion.frame import Frame
 from go_core.diffusion.models import WeightPaths, load_repair_models, missing_weights, require_weights
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.errors import MissingWeightsError
-from tests._tiny_repair import one_thread, tiny_weights
+from tests._tiny_repair import tiny_weights
 
 
 @pytest.fixture(scope="module")
@@ -20,10 +20,7 @@ def weights(tmp_path_factory):
     return tiny_weights(tmp_path_factory.mktemp("tiny_repair"))
 
 
-@pytest.fixture(autouse=True)
-def _threads():
-    with one_thread():
-        yield
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 def test_missing_weights_one_clear_message(tmp_path):

@@ -4,20 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from go_core.camera import Camera, look_at
 from go_core.errors import EmptyHullError
 from go_core.hull import points_to_gaussians, visual_hull
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 def sphere_mask(cam: Camera, center: np.ndarray, r: float, ss: int = 4) -> np.ndarray:

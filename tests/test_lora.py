@@ -15,7 +15,7 @@ from go_core.diffusion.lora import (
 )
 from go_core.diffusion.models import WeightPaths, load_repair_models
 from go_core.diffusion.sampler import RepairDiffusion
-from tests._tiny_repair import one_thread, tiny_weights
+from tests._tiny_repair import tiny_weights
 
 
 @pytest.fixture(scope="module")
@@ -23,10 +23,7 @@ def weights(tmp_path_factory):
     return tiny_weights(tmp_path_factory.mktemp("tiny_repair"))
 
 
-@pytest.fixture(autouse=True)
-def _threads():
-    with one_thread():
-        yield
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 def _base_state(models) -> dict[str, torch.Tensor]:

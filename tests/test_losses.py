@@ -9,14 +9,7 @@ from skimage.metrics import structural_similarity
 
 from go_core.losses import depth_loss, dssim, l1, mask_bce, normalize_depth, ssim, ssim_map
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 def _pair(h=40, w=50, seed=0, dtype=torch.float64):

@@ -10,14 +10,7 @@ from go_core.errors import GoError
 from go_core.gaussians import Gaussians
 from go_core.ply import load_ply, ply_property_names, save_ply
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 def _random_gaussians(n=50, degree=2, seed=0) -> Gaussians:

@@ -4,19 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from go_core.camera import fit_ellipse, look_at, look_at_point
 from go_core.trajectory import contact_sheet, turntable_cameras
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Small tensors: one thread is faster and immune to OpenMP oversubscription on a busy machine."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
 
 def _ring(n, radius, height, size=64, phase=0.0):
