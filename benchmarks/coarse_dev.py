@@ -30,7 +30,7 @@ import torch
 
 from go_core.hull import points_to_gaussians, random_init, visual_hull
 from go_core.losses import ssim
-from go_core.render import render_gaussians
+from go_core.render import render_camera
 from go_core.scene.loader import load_scene
 from go_core.training import TrainView, config_from_params, optimize
 
@@ -79,9 +79,7 @@ def evaluate(g, scene) -> dict:
     with torch.no_grad():
         for v in scene.test:
             cam = v.camera
-            out = render_gaussians(
-                g, cam.viewmat_tensor()[None], cam.K_tensor()[None], cam.width, cam.height, background=white
-            )
+            out = render_camera(g, cam, background=white)
             pred = out.rgb[0].clamp(0, 1)
             gt = torch.from_numpy(scene.composite(v, 1.0).astype(np.float32))
             ps.append(psnr(pred.numpy(), gt.numpy()))

@@ -161,18 +161,9 @@ def scene_extent(cameras: list[Camera]) -> float:
 
 
 def _render(gaussians: Gaussians, cam: Camera, sh_degree: int, background: torch.Tensor, backend: str):
-    from go_core.render import render_gaussians
+    from go_core.render import render_camera
 
-    return render_gaussians(
-        gaussians,
-        cam.viewmat_tensor()[None],
-        cam.K_tensor()[None],
-        cam.width,
-        cam.height,
-        sh_degree=sh_degree,
-        background=background,
-        backend=backend,
-    )
+    return render_camera(gaussians, cam, sh_degree=sh_degree, background=background, backend=backend)
 
 
 def view_loss(

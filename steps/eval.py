@@ -42,22 +42,14 @@ def render_views(gaussians, cameras, device: str = "cpu", backend: str = "auto")
     """Render each camera on a white background; float32 [H,W,3] numpy images."""
     import torch
 
-    from go_core.render import render_gaussians
+    from go_core.render import render_camera
 
     g = gaussians.to(device=device, dtype=torch.float32)
     white = torch.ones(3, device=device)
     out = []
     with torch.no_grad():
         for cam in cameras:
-            res = render_gaussians(
-                g,
-                cam.viewmat_tensor(device=device)[None],
-                cam.K_tensor(device=device)[None],
-                cam.width,
-                cam.height,
-                background=white,
-                backend=backend,
-            )
+            res = render_camera(g, cam, background=white, backend=backend)
             out.append(res.rgb[0].clamp(0, 1).cpu().numpy().astype(np.float32))
     return out
 

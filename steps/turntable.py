@@ -11,7 +11,7 @@ from go_pipeline.steps._common import final_model_path
 
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write
-from go_core.render import render_gaussians
+from go_core.render import render_camera
 from go_core.scene.artifact import load_scene_cameras
 from go_core.trajectory import contact_sheet, turntable_cameras
 
@@ -31,15 +31,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     bar = ctx.progress(len(cams), "turntable")
     with torch.no_grad():
         for cam in cams:
-            out = render_gaussians(
-                g,
-                cam.viewmat_tensor()[None],
-                cam.K_tensor()[None],
-                cam.width,
-                cam.height,
-                background=bg,
-                backend=backend,
-            )
+            out = render_camera(g, cam, background=bg, backend=backend)
             frames.append((out.rgb[0].clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8))
             bar.advance()
     bar.close()

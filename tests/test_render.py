@@ -7,7 +7,8 @@ import math
 import pytest
 import torch
 
-from go_core.render import render, render_gaussians
+from go_core.camera import Camera
+from go_core.render import render, render_camera, render_gaussians
 from go_core.render.projection import project_gaussians
 from go_core.render.synthetic import random_scene
 from go_core.sh import eval_sh, sh_basis
@@ -257,6 +258,9 @@ def test_render_gaussians_and_bad_inputs(cpu_ext):
     scene = random_scene(1, 32, 24, dtype=torch.float32)
     out = render_gaussians(g, scene[5], scene[6], 32, 24)
     assert out.rgb.shape == (1, 24, 32, 3) and out.alpha.max() > 0.1
+    cam = Camera("c", 32, 24, scene[6][0].double().numpy(), scene[5][0].double().numpy())
+    one = render_camera(g, cam)
+    assert torch.equal(one.rgb, out.rgb) and torch.equal(one.alpha, out.alpha)
     with pytest.raises(ValueError, match="quats"):
         render(
             torch.zeros(3, 3),

@@ -17,6 +17,6 @@ CONTRACT (all backends; owned by the rasterizer work, issue #3):
 The maths (projection, tiles, compositing, backward) and the backends are documented in docs/rendering.md.
 """
 
-from go_core.render.api import RenderOutput, render, render_gaussians
+from go_core.render.api import RenderOutput, render, render_camera, render_gaussians
 
-__all__ = ["RenderOutput", "render", "render_gaussians"]
+__all__ = ["RenderOutput", "render", "render_camera", "render_gaussians"]

@@ -135,3 +135,17 @@ def render_gaussians(gaussians, viewmats, Ks, width, height, **kwargs) -> Render
         sh_degree=kwargs.pop("sh_degree", gaussians.sh_degree),
         **kwargs,
     )
+
+
+def render_camera(gaussians, camera, **kwargs) -> RenderOutput:
+    """Render a ``Gaussians`` set into one ``go_core.camera.Camera`` (a batch of C = 1, on the Gaussians'
+    device); keyword arguments as for ``render``."""
+    device = gaussians.means.device
+    return render_gaussians(
+        gaussians,
+        camera.viewmat_tensor(device=device)[None],
+        camera.K_tensor(device=device)[None],
+        camera.width,
+        camera.height,
+        **kwargs,
+    )

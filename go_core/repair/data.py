@@ -55,19 +55,10 @@ def render_rgb_alpha(
 def render_differentiable(
     g: Gaussians, cam: Camera, background: float = 1.0, backend: str = "auto", sh_degree: int | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    from go_core.render import render_gaussians
+    from go_core.render import render_camera
 
     kw = {} if sh_degree is None else {"sh_degree": sh_degree}
-    out = render_gaussians(
-        g,
-        cam.viewmat_tensor()[None],
-        cam.K_tensor()[None],
-        cam.width,
-        cam.height,
-        background=torch.full((3,), float(background)),
-        backend=backend,
-        **kw,
-    )
+    out = render_camera(g, cam, background=torch.full((3,), float(background)), backend=backend, **kw)
     return out.rgb[0].clamp(0.0, 1.0), out.alpha[0, ..., 0]
 
 
