@@ -384,13 +384,15 @@ def check_poses(
 
 
 def estimate_poses(
-    views, workdir: Path | None = None, num_threads: int = 2, max_features: int = 4096
+    views, workdir: Path | None = None, num_threads: int = 2, max_features: int = 4096, seed: int = 0
 ) -> dict:
     """Incremental SfM with pycolmap for images without poses (``views``: objects with ``name``, ``image``
     and optional ``mask``). One shared PINHOLE camera is estimated. Returns {name: Camera} for the images
-    in the largest reconstruction, in COLMAP's arbitrary world frame and scale."""
+    in the largest reconstruction, in COLMAP's arbitrary world frame and scale. COLMAP's RANSAC and mapper
+    draw from ``seed``; results repeat exactly only with ``num_threads=1``."""
     import pycolmap
 
+    pycolmap.set_random_seed(seed)
     with tempfile.TemporaryDirectory(prefix="go-sfm-", dir=workdir) as tmp:
         work = Path(tmp)
         extract_and_match(views, work, max_features, num_threads, camera_model="PINHOLE")
@@ -398,6 +400,7 @@ def estimate_poses(
         out.mkdir()
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads = num_threads
+        options.random_seed = seed
         recs = pycolmap.incremental_mapping(work / "database.db", work / "images", out, options=options)
     if not recs:
         raise PoseCheckError("pycolmap SfM could not register any image pair")
