@@ -14,6 +14,7 @@ from tests._tiny_repair import tiny_weights
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket"
 
+
 @pytest.mark.slow
 def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_path, monkeypatch):
     from go_pipeline.runner import run_pipeline

@@ -128,6 +128,25 @@ def _is_single_file(path: Path) -> bool:
     return path.is_file() and path.suffix.lower() in SINGLE_FILE_SUFFIXES
 
 
+# What diffusers' single-file loaders read from the configs folder (the scheduler config is optional).
+_SINGLE_FILE_CONFIGS = {
+    "sd15": (
+        ("model_index.json",),
+        ("unet/config.json",),
+        ("vae/config.json",),
+        ("text_encoder/config.json",),
+        ("tokenizer/vocab.json", "tokenizer/tokenizer.json"),
+    ),
+    "controlnet": (("controlnet/config.json", "config.json"),),
+}
+
+
+def _missing_configs(kind: str, cfg: Path) -> list[str]:
+    """The config files (any one of each group) that ``cfg`` lacks for loading a ``kind`` single file."""
+    groups = _SINGLE_FILE_CONFIGS[kind]
+    return [" or ".join(g) for g in groups if not any((cfg / f).is_file() for f in g)]
+
+
 def missing_weights(paths: WeightPaths, need_controlnet: bool = True) -> list[str]:
     """Human-readable problems with ``paths`` (empty list: everything needed is present)."""
     problems: list[str] = []
@@ -140,6 +159,13 @@ def missing_weights(paths: WeightPaths, need_controlnet: bool = True) -> list[st
         if _is_single_file(p):
             if not paths.single_file_config:
                 problems.append(f"{kind}: {p} is a single file. {HOW_TO_GET['config']}")
+                return
+            lacking = _missing_configs(kind, Path(paths.single_file_config).expanduser())
+            if lacking:
+                problems.append(
+                    f"{kind}: {p} is a single file but {paths.single_file_config} has no "
+                    f"{' / '.join(lacking)}. {HOW_TO_GET['config']}"
+                )
             return
         if not p.is_dir() or not (p / folder_marker).is_file():
             problems.append(
@@ -162,21 +188,61 @@ def require_weights(paths: WeightPaths, need_controlnet: bool = True) -> None:
         raise MissingWeightsError("repair model weights missing: " + " | ".join(problems))
 
 
+def _from_single_file(kind: str, cls: Any, path: Path, **kwargs: Any) -> Any:
+    """``cls.from_single_file(path, ...)``; an unreadable file or one without the expected tensors raises
+    ValueError starting ``"<kind>: <path>"``.
+
+    diffusers reports a component absent from the file with SingleFileComponentError, a file of another model
+    with KeyError/TypeError from its converters, and leaves the tensors a partial file lacks on the meta
+    device (where ``.to()`` fails).
+    """
+    from diffusers.loaders.single_file_utils import SingleFileComponentError
+
+    try:
+        loaded = cls.from_single_file(str(path), local_files_only=True, **kwargs)
+    except (OSError, ValueError, SingleFileComponentError) as exc:  # unreadable, or a component not in it
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise ValueError(f"{kind}: {path}: {first}") from exc
+    except (KeyError, TypeError, AttributeError, IndexError) as exc:
+        what = f"{type(exc).__name__}: {exc}"
+        raise ValueError(f"{kind}: {path}: diffusers cannot convert it ({what})") from exc
+    except NotImplementedError as exc:  # "Cannot copy out of meta tensor": the file lacks some tensors
+        raise ValueError(f"{kind}: {path} lacks some of the model's tensors ({type(exc).__name__})") from exc
+    modules = {kind: loaded} if isinstance(loaded, torch.nn.Module) else loaded.components
+    for name, module in modules.items():
+        if isinstance(module, torch.nn.Module):
+            absent = [n for n, t in module.named_parameters() if t.is_meta]
+            if absent:
+                raise ValueError(f"{kind}: {path} lacks {len(absent)} {name} tensors (e.g. {absent[0]})")
+    return loaded
+
+
 def _load_sd_components(paths: WeightPaths, dtype: torch.dtype) -> dict[str, Any]:
     from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
     from transformers import CLIPTextModel, CLIPTokenizer
 
     sd = Path(paths.sd15).expanduser()
-    if _is_single_file(sd):
+    cfg = Path(paths.single_file_config).expanduser()
+    single = _is_single_file(sd)
+    sched_dir = (cfg if single else sd) / "scheduler"
+    if (sched_dir / "scheduler_config.json").is_file():
+        scheduler = DDIMScheduler.from_pretrained(sched_dir, local_files_only=True)
+    else:
+        from go_core.diffusion.configs import SD15_SCHEDULER
+
+        scheduler = DDIMScheduler(**SD15_SCHEDULER)
+    if single:
         from diffusers import StableDiffusionPipeline
 
-        cfg = Path(paths.single_file_config).expanduser()
-        pipe = StableDiffusionPipeline.from_single_file(
-            str(sd),
+        pipe = _from_single_file(
+            "sd15",
+            StableDiffusionPipeline,
+            sd,
             config=str(cfg),
-            local_files_only=True,
             torch_dtype=dtype,
+            scheduler=scheduler,  # so that the configs folder needs no scheduler/
             safety_checker=None,
+            feature_extractor=None,  # listed in SD1.5's model_index.json, not needed, often not downloaded
             requires_safety_checker=False,
         )
         parts = {
@@ -185,7 +251,6 @@ def _load_sd_components(paths: WeightPaths, dtype: torch.dtype) -> dict[str, Any
             "text_encoder": pipe.text_encoder,
             "tokenizer": pipe.tokenizer,
         }
-        sched_dir = cfg / "scheduler"
     else:
         parts = {
             "unet": UNet2DConditionModel.from_pretrained(
@@ -199,13 +264,7 @@ def _load_sd_components(paths: WeightPaths, dtype: torch.dtype) -> dict[str, Any
             ),
             "tokenizer": CLIPTokenizer.from_pretrained(sd, subfolder="tokenizer", local_files_only=True),
         }
-        sched_dir = sd / "scheduler"
-    if (sched_dir / "scheduler_config.json").is_file():
-        parts["scheduler"] = DDIMScheduler.from_pretrained(sched_dir, local_files_only=True)
-    else:
-        from go_core.diffusion.configs import SD15_SCHEDULER
-
-        parts["scheduler"] = DDIMScheduler(**SD15_SCHEDULER)
+    parts["scheduler"] = scheduler
     if paths.clip:
         clip = Path(paths.clip).expanduser()
         parts["text_encoder"] = CLIPTextModel.from_pretrained(clip, dtype=dtype, local_files_only=True)
@@ -222,9 +281,7 @@ def _load_controlnet(paths: WeightPaths, dtype: torch.dtype, unet: Any) -> Any:
     if _is_single_file(cn):
         cfg = Path(paths.single_file_config).expanduser()
         cfg = cfg / "controlnet" if (cfg / "controlnet" / "config.json").is_file() else cfg
-        return ControlNetModel.from_single_file(
-            str(cn), config=str(cfg), local_files_only=True, torch_dtype=dtype
-        )
+        return _from_single_file("controlnet", ControlNetModel, cn, config=str(cfg), torch_dtype=dtype)
     return ControlNetModel.from_pretrained(cn, torch_dtype=dtype, local_files_only=True)
 
 
