@@ -2,12 +2,19 @@
 
 Image tensors are accepted as [B,3,H,W] or [H,W,3] (a single image, channels last, as the renderer returns
 per camera) or [B,H,W,3] when ``channels_last=True``; all functions are differentiable.
+
+``ssim`` of one float32 CPU image pair runs the compiled kernel (go_core/render/csrc/ssim.cpp, part of the
+CPU rasterizer extension: double-precision filtering and a hand-written backward, ~4x faster than the torch
+path); ``ssim_map`` is the torch reference (any dtype/device/batch, autograd).
 """
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
+from torch.autograd.function import once_differentiable
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
@@ -62,15 +69,72 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = Fa
     return ((2 * mu12 + SSIM_C1) * (2 * s12 + SSIM_C2)) / ((mu1_sq + mu2_sq + SSIM_C1) * (s1 + s2 + SSIM_C2))
 
 
+@functools.cache
+def _window64() -> torch.Tensor:
+    """The separable 1D SSIM kernel in float64 (what the compiled kernel filters with)."""
+    return gaussian_window(dtype=torch.float64).sum(0)
+
+
+def _ssim_ops():
+    from go_core.render.build import load_extension
+
+    load_extension()  # registers torch.ops.go_ssim (built once per machine, cached in this process)
+    return torch.ops.go_ssim
+
+
+class _SSIMKernel(torch.autograd.Function):
+    """Mean SSIM of one [H,W,C] float32 CPU image pair by the compiled kernel; gradient for the first only."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, y: torch.Tensor, need_grad: bool) -> torch.Tensor:
+        mean, partials = _ssim_ops().forward(x, y, _window64(), SSIM_C1, SSIM_C2, need_grad)
+        if need_grad:
+            ctx.save_for_backward(x, y, partials)
+        return mean.to(x.dtype)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: torch.Tensor):
+        x, y, partials = ctx.saved_tensors
+        gx = _ssim_ops().backward(x, y, partials, _window64(), float(grad) / x.numel())
+        return gx, None, None
+
+
+def _kernel_applies(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Whether ``ssim`` of these [B,C,H,W] tensors runs the compiled kernel: one 3-channel float32 CPU pair
+    whose second image is a constant target."""
+    return (
+        a.device.type == "cpu"
+        and b.device.type == "cpu"
+        and a.dtype == torch.float32
+        and b.dtype == torch.float32
+        and a.shape == b.shape
+        and a.shape[0] == 1
+        and a.shape[1] == 3
+        and a.numel() > 0
+        and not (b.requires_grad and torch.is_grad_enabled())
+    )
+
+
 def ssim(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = False) -> torch.Tensor:
     """Mean SSIM (scalar tensor, differentiable) of two images or batches in [0, 1], 3DGS convention.
 
-    Accepts [B,3,H,W], a single [H,W,3] image, or [B,H,W,3] with ``channels_last=True``. Note: scikit-image's
+    Accepts [B,3,H,W], a single [H,W,3] image, or [B,H,W,3] with ``channels_last=True``. One float32 CPU
+    image pair whose target (``img2``) needs no gradient runs the compiled kernel (equal to ``ssim_map``'s
+    mean in float64 to ~1e-14, then rounded to float32; the renderer's [H,W,3] layout is used without a
+    copy); anything else runs ``ssim_map``. Note: scikit-image's
     ``structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1)``
     averages only over pixels whose window lies inside the image; ``ssim_map(...)[..., 5:-5, 5:-5].mean()``
     equals it to float precision.
     """
-    return ssim_map(img1, img2, channels_last=channels_last).mean()
+    a = _as_bchw(img1, channels_last)
+    b = _as_bchw(img2, channels_last)
+    if _kernel_applies(a, b):
+        need_grad = a.requires_grad and torch.is_grad_enabled()
+        x = a.squeeze(0).permute(1, 2, 0).contiguous()  # no copy for a permuted [H,W,3] image
+        y = b.detach().squeeze(0).permute(1, 2, 0).contiguous()
+        return _SSIMKernel.apply(x, y, need_grad)
+    return ssim_map(a, b).mean()
 
 
 def l1(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
@@ -99,13 +163,17 @@ def photometric_loss(
 def mask_bce(alpha: torch.Tensor, mask: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
     """Binary cross-entropy between the rendered opacity and the (possibly fractional) object mask.
 
-    Shapes must broadcast ([C,H,W,1] vs [C,H,W,1] or [C,H,W]). Alpha is clamped to [eps, 1-eps] so the loss
-    stays finite where the model is fully opaque or empty.
+    Alpha and mask must have the same number of elements (alpha is reshaped to the mask's shape, e.g. the
+    renderer's [1,H,W,1] against [H,W]). Alpha is clamped to [eps, 1-eps] so the loss stays finite where the
+    model is fully opaque or empty.
     """
     if alpha.shape != mask.shape and alpha.numel() == mask.numel():
         alpha = alpha.reshape(mask.shape)  # e.g. the renderer's [1,H,W,1] against an [H,W] mask
+    if alpha.shape != mask.shape:
+        raise ValueError(f"mask_bce: alpha {tuple(alpha.shape)} and mask {tuple(mask.shape)} differ in size")
     a = alpha.clamp(eps, 1.0 - eps)
-    return F.binary_cross_entropy(a, mask.to(a.dtype))
+    # m·log(a) + (1-m)·log(1-a) as one lerp: the value of F.binary_cross_entropy, ~2.5x cheaper on CPU
+    return -torch.lerp(torch.log1p(-a), a.log(), mask.to(a.dtype)).mean()
 
 
 def normalize_depth(

@@ -36,6 +36,12 @@ class LearningRates:
         return math.exp(math.log(self.means_init) * (1 - t) + math.log(self.means_final) * t) * extent
 
 
+def _adam(groups: list[dict]) -> torch.optim.Adam:
+    """3DGS's Adam (eps 1e-15), fused: one kernel per group instead of ~10 elementwise ops (4x faster on CPU
+    for 26k Gaussians; the coarse loop pays it every iteration). Elementwise, so still deterministic."""
+    return torch.optim.Adam(groups, eps=1e-15, fused=True)
+
+
 class GaussianOptimizer:
     """Trainable Gaussian tensors (``sh`` split into DC ``sh0`` and rest ``shN`` for their learning rates)."""
 
@@ -62,9 +68,7 @@ class GaussianOptimizer:
             "sh0": lrs.sh0,
             "shN": lrs.shN,
         }
-        self.optimizer = torch.optim.Adam(
-            [{"params": [self.params[k]], "lr": lr[k], "name": k} for k in PARAM_NAMES], eps=1e-15
-        )
+        self.optimizer = _adam([{"params": [self.params[k]], "lr": lr[k], "name": k} for k in PARAM_NAMES])
 
     # Views -------------------------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -140,5 +144,5 @@ class GaussianOptimizer:
         self.extent = float(state["extent"])
         self.params = {k: torch.nn.Parameter(state["params"][k].clone()) for k in PARAM_NAMES}
         groups = [{"params": [self.params[k]], "lr": 0.0, "name": k} for k in PARAM_NAMES]
-        self.optimizer = torch.optim.Adam(groups, eps=1e-15)
+        self.optimizer = _adam(groups)
         self.optimizer.load_state_dict(state["optimizer"])

@@ -1,6 +1,7 @@
 """Build once per machine and load the compiled CPU rasterizer (`python -m go_core.render.build` prebuilds).
 
-The extension is compiled from go_core/render/csrc/*.cpp with the system C++ compiler through
+The extension (the rasterizer, and the SSIM loss kernel that ``go_core.losses.ssim`` reaches through
+``torch.ops.go_ssim``) is compiled from go_core/render/csrc/*.cpp with the system C++ compiler through
 ``torch.utils.cpp_extension.load`` (ninja). The build directory is keyed by a hash of the sources, flags,
 torch/python versions and the CPU's instruction-set flags (the code is built with ``-march=native``), under
 ``$TORCH_EXTENSIONS_DIR`` if set, else ``~/.cache/go-pipeline/torch_extensions``. Later calls only load it.
@@ -17,7 +18,7 @@ import sys
 from pathlib import Path
 
 CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = ("rasterize.cpp", "project.cpp")
+SOURCES = ("rasterize.cpp", "project.cpp", "ssim.cpp")
 CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 
