@@ -74,8 +74,10 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def evaluate(g, scene) -> dict:
+    """Test-view PSNR/SSIM on white, plus where the error is: silhouette IoU (rendered alpha > 0.5 vs the
+    true mask) and the share of squared error on pixels outside the true silhouette."""
     white = torch.ones(3)
-    ps, ss = [], []
+    ps, ss, ious, outside = [], [], [], []
     with torch.no_grad():
         for v in scene.test:
             cam = v.camera
@@ -84,11 +86,21 @@ def evaluate(g, scene) -> dict:
             gt = torch.from_numpy(scene.composite(v, 1.0).astype(np.float32))
             ps.append(psnr(pred.numpy(), gt.numpy()))
             ss.append(float(ssim(pred, gt)))
-    return {
+            if v.mask is not None:
+                m = np.asarray(v.mask) > 0.5
+                a = out.alpha[0, ..., 0].numpy() > 0.5
+                ious.append(float((a & m).sum() / max((a | m).sum(), 1)))
+                se = ((pred.numpy().astype(np.float64) - gt.numpy()) ** 2).sum(-1)
+                outside.append(float(se[~m].sum() / max(se.sum(), 1e-12)))
+    res = {
         "psnr": float(np.mean(ps)),
         "ssim": float(np.mean(ss)),
         "psnr_per_view": [round(p, 3) for p in ps],
     }
+    if ious:
+        res["silhouette_iou"] = round(float(np.mean(ious)), 4)
+        res["error_share_outside_silhouette"] = round(float(np.mean(outside)), 4)
+    return res
 
 
 def run_variant(scene, name: str, iterations: int, seed: int, extra: dict) -> dict:
