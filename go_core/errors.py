@@ -28,3 +28,12 @@ class MissingWeightsError(GoError):
 
 class EmptyHullError(GoError):
     """The mask frusta do not intersect: the masks do not overlap, the poses are probably wrong."""
+
+
+def first_line(exc: BaseException) -> str:
+    """The first non-empty line of an exception's message, or its type name when the message is empty
+    (for one-line reports of errors raised by libraries)."""
+    for line in str(exc).splitlines():
+        if line.strip():
+            return line.strip()
+    return type(exc).__name__

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from go_core.errors import PipelineError
+from go_core.errors import PipelineError, first_line
 
 SCENE_INPUT = "@scene"  # the pseudo-input naming the scene folder itself (a step may be called `scene`)
 _STEP_KEYS = {"function", "inputs", "outputs", "params", "description"}
@@ -139,7 +139,7 @@ def parse_set_argument(text: str, path: Path | str = "pipeline.yaml") -> tuple[s
     try:
         value = yaml.safe_load(raw) if raw.strip() else ""
     except yaml.YAMLError as e:
-        first = str(e).splitlines()[0]
+        first = first_line(e)
         raise PipelineError(f"--set {text}: value is not valid YAML ({first})", path) from None
     return dotted.strip(), value
 
@@ -232,7 +232,7 @@ def load_pipeline(path: str | Path | None = None) -> Pipeline:
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        problem = getattr(e, "problem", None) or first_line(e)
         raise PipelineError(f"invalid YAML{where}: {problem}", path) from None
     if not isinstance(data, dict):
         raise PipelineError("expected a mapping with 'steps' at the top level", path)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from go_pipeline.steps._common import write_skipped
 
-from go_core.errors import GoError
+from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 
 VERSION = "2"  # 2: compiled SSIM kernel + fused Adam (results change at rounding level)
@@ -40,7 +40,7 @@ def _lpips(net: str, weight: float):
 
         model = LPIPS.from_cache(net)
     except (GoError, OSError, KeyError, RuntimeError) as exc:
-        return None, f"off: LPIPS-{net} weights unavailable ({str(exc).splitlines()[0]})"
+        return None, f"off: LPIPS-{net} weights unavailable ({first_line(exc)})"
     return (lambda a, b: model(a * 2.0 - 1.0, b * 2.0 - 1.0)), f"on (LPIPS-{net})"
 
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import torch
 
-from go_core.errors import MissingWeightsError
+from go_core.errors import MissingWeightsError, first_line
 
 ENV_SD15 = "GO_SD15_PATH"
 ENV_CONTROLNET = "GO_CONTROLNET_TILE_PATH"
@@ -298,7 +298,7 @@ def load_repair_models(
         cn = _load_controlnet(paths, dtype, parts["unet"])
     except (OSError, ValueError) as exc:  # unreadable / incompatible files: still a weights problem
         raise MissingWeightsError(
-            f"could not load the repair model from {paths.describe()}: {str(exc).splitlines()[0]}"
+            f"could not load the repair model from {paths.describe()}: {first_line(exc)}"
         ) from exc
     models = RepairModels(controlnet=cn, sources=paths.describe(), **parts)
     for m in models.modules().values():
