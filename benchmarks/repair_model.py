@@ -21,22 +21,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 import torch
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+from _machine import cpu_name  # benchmarks/ is on sys.path when run as a script
 
 
 def _sync(device: str) -> None:
@@ -133,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     gs_total = None if args.gs_iter_ms is None else args.gs_iter_ms / 1000.0 * args.gs_iterations
     result = {
         "device": args.device,
-        "device_name": torch.cuda.get_device_name() if args.device.startswith("cuda") else _cpu_name(),
+        "device_name": torch.cuda.get_device_name() if args.device.startswith("cuda") else cpu_name(),
         "size": args.size,
         "comparable_with_paper": args.size == "full" and args.device.startswith("cuda") and res == 512,
         "resolution": res,

@@ -16,22 +16,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
+from _machine import cpu_name  # benchmarks/ is on sys.path when run as a script
+
 DEFAULT_JSON = Path(__file__).resolve().parent / "results" / "ssim_loss_cpu.json"
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def _pair(size: int):
@@ -113,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     out = {
         "machine": {
-            "cpu": _cpu_model(),
+            "cpu": cpu_name(),
             "cores": os.cpu_count(),
             "loadavg_1min": round(os.getloadavg()[0], 2),
             "torch": torch.__version__,
