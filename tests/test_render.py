@@ -244,6 +244,14 @@ def test_build_key_and_missing_compiler(monkeypatch, tmp_path):
 
     key = build.build_key()
     assert key == build.build_key() and len(key) == 16
+    # the same sources in another checkout get their own build dir (ninja files hold absolute paths)
+    other = tmp_path / "checkout" / "csrc"
+    other.mkdir(parents=True)
+    for name in build.SOURCES:
+        (other / name).write_bytes((build.CSRC / name).read_bytes())
+    monkeypatch.setattr(build, "CSRC", other)
+    assert build.build_key() != key
+    monkeypatch.undo()
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
     assert build.build_root() == tmp_path
     monkeypatch.setenv("CXX", "no-such-compiler-xyz")

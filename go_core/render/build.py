@@ -2,9 +2,10 @@
 
 The extension (the rasterizer, and the SSIM loss kernel that ``go_core.losses.ssim`` reaches through
 ``torch.ops.go_ssim``) is compiled from go_core/render/csrc/*.cpp with the system C++ compiler through
-``torch.utils.cpp_extension.load`` (ninja). The build directory is keyed by a hash of the sources, flags,
-torch/python versions and the CPU's instruction-set flags (the code is built with ``-march=native``), under
-``$TORCH_EXTENSIONS_DIR`` if set, else ``~/.cache/go-pipeline/torch_extensions``. Later calls only load it.
+``torch.utils.cpp_extension.load`` (ninja). The build directory is keyed by a hash of the sources and their
+folder, flags, torch/python versions and the CPU's instruction-set flags (the code is built with
+``-march=native``), under ``$TORCH_EXTENSIONS_DIR`` if set, else ``~/.cache/go-pipeline/torch_extensions``.
+Later calls only load it.
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ def build_key() -> str:
     import torch
 
     h = hashlib.sha256()
+    # the checkout's path too: torch's ninja build files name the sources by absolute path, so two
+    # checkouts sharing one build dir would rebuild it in turn (~100 s inside whichever step loads it first)
+    h.update(str(CSRC).encode())
     for name in SOURCES:
         h.update(name.encode())
         h.update((CSRC / name).read_bytes())
