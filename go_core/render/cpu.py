@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 
 from go_core.render.build import load_extension
-from go_core.render.projection import EPS2D, Projected
+from go_core.render.projection import EPS2D, Projected, check_colors
 
 
 def _f32(t: torch.Tensor) -> torch.Tensor:
@@ -62,15 +62,7 @@ def project_cpu(
     eps2d: float = EPS2D,
 ) -> Projected:
     """Compiled equivalent of ``go_core.render.projection.project_gaussians``."""
-    if sh_degree is not None:
-        if colors.dim() != 3 or colors.shape[-1] != 3 or colors.shape[1] < (sh_degree + 1) ** 2:
-            raise ValueError(
-                f"sh_degree={sh_degree} needs colors [N,≥{(sh_degree + 1) ** 2},3], got {tuple(colors.shape)}"
-            )
-        if not 0 <= sh_degree <= 3:
-            raise ValueError(f"SH degree must be in 0..3, got {sh_degree}")
-    elif colors.dim() != 2 or colors.shape[-1] != 3:
-        raise ValueError(f"without sh_degree colors must be RGB [N,3], got {tuple(colors.shape)}")
+    check_colors(colors, sh_degree)
     settings = (
         int(width),
         int(height),

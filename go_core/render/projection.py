@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from go_core.sh import eval_sh
+from go_core.sh import MAX_SH_DEGREE, eval_sh, num_sh_bases
 
 EPS2D = 0.3  # low-pass filter (pixels²) added to every projected covariance
 MAX_AXIS_PX = 1e8  # projected extents beyond this are culled (keeps float32 determinants finite)
@@ -31,6 +31,21 @@ class Projected:
     opacities: torch.Tensor  # [C,N] (times the antialiasing compensation when enabled)
     depths: torch.Tensor  # [C,N] camera-space z
     radii: torch.Tensor  # [C,N] int32 3-sigma pixel radius, 0 = culled
+
+
+def check_colors(colors: torch.Tensor, sh_degree: int | None) -> None:
+    """ValueError unless ``colors`` fits ``sh_degree``: SH coefficients [N,≥(d+1)²,3], or RGB [N,3] without
+    a degree (shared by the projection backends)."""
+    if sh_degree is None:
+        if colors.dim() != 2 or colors.shape[-1] != 3:
+            raise ValueError(f"without sh_degree colors must be RGB [N,3], got {tuple(colors.shape)}")
+        return
+    if colors.dim() != 3 or colors.shape[-1] != 3 or colors.shape[1] < num_sh_bases(sh_degree):
+        raise ValueError(
+            f"sh_degree={sh_degree} needs colors [N,≥{num_sh_bases(sh_degree)},3], got {tuple(colors.shape)}"
+        )
+    if not 0 <= sh_degree <= MAX_SH_DEGREE:
+        raise ValueError(f"SH degree must be in 0..{MAX_SH_DEGREE}, got {sh_degree}")
 
 
 def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
@@ -72,6 +87,7 @@ def project_gaussians(
     eps2d: float = EPS2D,
 ) -> Projected:
     """EWA-project N Gaussians into C cameras (pinhole, OpenCV convention, see go_core.camera)."""
+    check_colors(colors, sh_degree)
     C = viewmats.shape[0]
     R = viewmats[:, :3, :3]  # [C,3,3]
     t = viewmats[:, :3, 3]  # [C,3]
@@ -148,14 +164,10 @@ def project_gaussians(
         opac = opac * torch.sqrt(ratio)
 
     if sh_degree is not None:
-        if colors.dim() != 3:
-            raise ValueError(f"sh_degree={sh_degree} needs colors [N,K,3], got {tuple(colors.shape)}")
         campos = -torch.einsum("cji,cj->ci", R, t)  # camera centres -Rᵀt [C,3]
         dirs = means[None, :, :] - campos[:, None, :]
         rgb = torch.clamp_min(eval_sh(sh_degree, colors[None], dirs) + 0.5, 0.0)
     else:
-        if colors.dim() != 2 or colors.shape[-1] != 3:
-            raise ValueError(f"without sh_degree colors must be RGB [N,3], got {tuple(colors.shape)}")
         rgb = colors[None].expand(C, -1, -1)
 
     return Projected(means2d, conics, rgb, opac, z_safe, radii)
