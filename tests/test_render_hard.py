@@ -179,7 +179,7 @@ def test_one_hundred_thousand_on_one_pixel(cpu_ext):
     means = torch.zeros(n, 3)
     vm, K = _camera(48, 40)
     colors = torch.rand(n, 3, generator=torch.Generator().manual_seed(7))
-    out, grads = _run(
+    args = (
         means,
         torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
         torch.full((n, 3), 1e-3),
@@ -191,24 +191,14 @@ def test_one_hundred_thousand_on_one_pixel(cpu_ext):
         40,
         "cpu",
     )
+    out, grads = _run(*args)
     centre = out.alpha[0, 20, 24, 0]
     # front to back, each α = 0.5·exp(-σ): the pixel saturates and stops before T ≤ 1e-4
     assert 0.999 < float(centre.detach()) <= 1 - 1e-4 + 1e-6
     # only Gaussians composited before the pixels stop matter (faint edge pixels need ~2k of them)
     assert 10 < int((grads[3] != 0).sum()) < 5000
     # equal depths: ties keep index order, so the front-most is Gaussian 0 and the result is deterministic
-    again, _ = _run(
-        means,
-        torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-        torch.full((n, 3), 1e-3),
-        torch.full((n,), 0.5),
-        colors,
-        vm,
-        K,
-        48,
-        40,
-        "cpu",
-    )
+    again, _ = _run(*args)
     assert torch.equal(out.rgb, again.rgb)
 
 
