@@ -40,6 +40,12 @@ def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, *, dtype
     return torch.outer(g, g).to(dtype)
 
 
+@functools.cache
+def _window64() -> torch.Tensor:
+    """The separable 1D SSIM kernel in float64 (ssim_map and the compiled kernel filter with it)."""
+    return gaussian_window(dtype=torch.float64).sum(0)
+
+
 def ssim_map(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = False) -> torch.Tensor:
     """Per-pixel SSIM [B,C,H,W] with the 3DGS settings: 11×11 Gaussian window (σ = 1.5), zero padding of 5
     pixels (the output keeps the input size), C1 = 0.01², C2 = 0.03² for images in [0, 1]."""
@@ -48,7 +54,7 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = Fa
     if a.shape != b.shape:
         raise ValueError(f"ssim: image shapes differ {tuple(a.shape)} vs {tuple(b.shape)}")
     c = a.shape[1]
-    g = gaussian_window(dtype=torch.float64).sum(0).to(device=a.device, dtype=a.dtype)  # separable 1D kernel
+    g = _window64().to(device=a.device, dtype=a.dtype)  # separable 1D kernel
     pad = SSIM_WINDOW // 2
 
     def filt(x: torch.Tensor) -> torch.Tensor:  # grouped separable convolution == 2D filter, zero padding
@@ -67,12 +73,6 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = Fa
     mu1_sq, mu2_sq, mu12 = mu1 * mu1, mu2 * mu2, mu1 * mu2
     s1, s2, s12 = e11 - mu1_sq, e22 - mu2_sq, e12 - mu12
     return ((2 * mu12 + SSIM_C1) * (2 * s12 + SSIM_C2)) / ((mu1_sq + mu2_sq + SSIM_C1) * (s1 + s2 + SSIM_C2))
-
-
-@functools.cache
-def _window64() -> torch.Tensor:
-    """The separable 1D SSIM kernel in float64 (what the compiled kernel filters with)."""
-    return gaussian_window(dtype=torch.float64).sum(0)
 
 
 def _ssim_ops():
