@@ -1,8 +1,10 @@
-"""Tile binning in torch (used by the reference backend; the compiled backend bins in C++ identically).
+"""Tile binning in torch (used by the reference backend).
 
 Each visible Gaussian covers the rectangle of 16x16 tiles
 ``[floor((u - r)/16), ceil((u + r)/16)) x [floor((v - r)/16), ceil((v + r)/16))`` clamped to the image,
-with ``r`` its integer 3-sigma radius. Within a tile Gaussians are ordered front to back by depth, ties by
+with ``r`` its integer 3-sigma radius. The compiled backend starts from the same rectangles and drops the
+tiles no pixel of which the Gaussian can reach with alpha >= 1/255 (same images, fewer pairs).
+Within a tile Gaussians are ordered front to back by depth, ties by
 index (a stable sort), so results are deterministic.
 """
 

@@ -131,6 +131,56 @@ static inline void rows_may_hit(const float* g, float x0, float y0, int32_t* hit
   }
 }
 
+// Conservative x-ranges, per tile row, of the pixels a Gaussian can reach with alpha >= 1/255: the x-extent,
+// within each 16-pixel strip, of the region rows_may_hit tests, in O(1) per strip instead of per row. Its
+// threshold thr(v) = T0 + 1e-5 c v² (v = my - y, T0 = log(255 o) + 1e-2) is bounded by the constant
+// T = T0 / (1 - 2e-5 c / (det/a)) on every row it can reach (|v| <= V = sqrt(2T a / det)), so the region lies
+// inside the ellipse 0.5 (a u² + 2 b u v + c v²) <= T. Its right edge x(v) = mx + (b/a) v + hw(v) is concave,
+// its left edge convex, so their extremes over a strip lie at v = ±b sqrt(2T / (det c)) clamped to the strip.
+// Same margins as rows_may_hit plus 0.05 px. Degenerate, NaN or far-off (> 1e5 px) input keeps whole rows.
+struct StripSpans {
+  bool keep_all = true;
+  float mx = 0, my = 0, b_a = 0, inv_a = 0, det_a = 0, T2 = 0, V = 0, vr = 0, xr = 0;
+
+  explicit StripSpans(const float* g) {
+    const float a = g[2], b = g[3], c = g[4];
+    det_a = g[11];
+    mx = g[0];
+    my = g[1];
+    // (comparisons are false for NaN); beyond 1e5 px float rounding could exceed the margins
+    if (!(det_a > 0.0f && a > 0.0f && c > 0.0f && std::fabs(mx) < 1e5f && std::fabs(my) < 1e5f)) return;
+    const float k = 1.0f - 2e-5f * c / det_a;
+    if (!(k > 0.5f)) return;  // anisotropy beyond ~1e4: not worth bounding
+    b_a = g[12];
+    inv_a = g[13];
+    T2 = 2.0f * (g[10] + 1e-2f) / k;
+    V = std::sqrt(T2 / det_a) * 1.0001f + 0.01f;
+    vr = b * std::sqrt(T2 / (det_a * a * c));
+    xr = half_width(vr);
+    keep_all = !(V < 1e30f && std::fabs(vr) < 1e30f && xr < 1e30f);
+  }
+
+  float half_width(float v) const {
+    return std::sqrt(std::max(T2 - det_a * v * v, 0.0f) * inv_a) * 1.0001f + 0.01f;
+  }
+
+  // x-range of the strip of pixel rows y0+0.5 .. y0+15.5; lo > hi: out of reach.
+  void range(float y0, float& lo, float& hi) const {
+    lo = -1e30f;
+    hi = 1e30f;
+    if (keep_all) return;
+    const float v0 = std::max(my - (y0 + (TILE - 0.5f)), -V), v1 = std::min(my - (y0 + 0.5f), V);
+    if (v0 > v1) {
+      lo = 1e30f;
+      hi = -1e30f;
+      return;
+    }
+    const float v_right = std::min(std::max(vr, v0), v1), v_left = std::min(std::max(-vr, v0), v1);
+    lo = mx + b_a * v_left - (v_left == -vr ? xr : half_width(v_left)) - 0.05f;
+    hi = mx + b_a * v_right + (v_right == vr ? xr : half_width(v_right)) + 0.05f;
+  }
+};
+
 template <typename F>
 static void parallel_dynamic(int64_t n, F&& f) {
   const int nt = std::max(1, std::min<int>(at::get_num_threads(), static_cast<int>(std::max<int64_t>(n, 1))));
@@ -187,11 +237,47 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
       rects[i] = r;
     }
   });
+  // The 3-sigma rectangle is only a candidate set: about half of its tiles are typically out of reach (its
+  // corners, the ellipse's thin side, low opacity). In every tile row keep only the tiles that StripSpans'
+  // x-range overlaps. Dropping the others changes no result (the compositing would skip every pixel row of
+  // such a pair) and saves their cost in the forward, the backward and the gradient reduction.
+  // spans[soff[i] + y - y0] = (first tile, end tile, rank of the first tile among the Gaussian's kept tiles
+  // in row-major order).
+  struct Span {
+    int32_t x0, x1, rank;
+  };
+  std::vector<int64_t> soff(C * N + 1);
+  soff[0] = 0;
+  for (int64_t i = 0; i < C * N; ++i) soff[i + 1] = soff[i] + std::max(0, rects[i].y1 - rects[i].y0);
+  std::vector<Span> spans(soff[C * N]);
+  at::parallel_for(0, C * N, 1024, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      const Rect& r = rects[i];
+      const float* g = P + i * NP;
+      Span* sp = spans.data() + soff[i];
+      int32_t kept = 0;
+      if (r.y1 <= r.y0 || r.x1 <= r.x0) {
+        goff[i + 1] = 0;
+        continue;
+      }
+      const StripSpans strips(g);
+      for (int y = r.y0; y < r.y1; ++y, ++sp) {
+        float span_lo, span_hi;
+        strips.range(float(y * TILE), span_lo, span_hi);
+        // tile x is touched by some row iff span_hi >= 16x + 0.5 and span_lo <= 16x + 15.5
+        const float fx0 = std::ceil((span_lo - (TILE - 0.5f)) / TILE);
+        const float fx1 = std::floor((span_hi - 0.5f) / TILE) + 1.0f;
+        // clamped to the rectangle; a NaN bound keeps the whole rectangle row (NaN comparisons are false)
+        const int x0 = fx0 > float(r.x0) ? static_cast<int>(std::min(fx0, float(r.x1))) : r.x0;
+        const int x1 = fx1 < float(r.x1) ? static_cast<int>(std::max(fx1, float(x0))) : r.x1;
+        *sp = {x0, x1, kept};
+        kept += x1 - x0;
+      }
+      goff[i + 1] = kept;
+    }
+  });
   goff[0] = 0;
-  for (int64_t i = 0; i < C * N; ++i) {
-    const Rect& r = rects[i];
-    goff[i + 1] = goff[i] + int64_t(std::max(0, r.x1 - r.x0)) * std::max(0, r.y1 - r.y0);
-  }
+  for (int64_t i = 0; i < C * N; ++i) goff[i + 1] += goff[i];
   const int64_t M = goff[C * N];
 
   // Depth order of the binned Gaussians of every camera.
@@ -203,7 +289,8 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
     sort_by_depth(ids, dp + c * N);
   });
 
-  // Counting sort into tiles, parallel over bands of tile rows (each band scans the depth order).
+  // Counting sort into tiles, parallel over bands of tile rows; each band scans, in depth order, the
+  // Gaussians whose rectangle reaches it.
   const int bands_per_cam = std::min(tiles_y, std::max(1, 4 * at::get_num_threads()));
   const int64_t units = C * bands_per_cam;
   auto band_rows = [&](int64_t u, int& r0, int& r1) {
@@ -211,6 +298,20 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
     r0 = static_cast<int>(int64_t(tiles_y) * b / bands_per_cam);
     r1 = static_cast<int>(int64_t(tiles_y) * (b + 1) / bands_per_cam);
   };
+  std::vector<int> row_band(tiles_y);
+  for (int64_t u = 0; u < bands_per_cam; ++u) {
+    int r0, r1;
+    band_rows(u, r0, r1);
+    for (int y = r0; y < r1; ++y) row_band[y] = static_cast<int>(u);
+  }
+  std::vector<std::vector<int32_t>> band_ids(units);
+  parallel_dynamic(C, [&](int64_t c) {
+    for (int32_t n : order[c]) {
+      const Rect& r = rects[c * N + n];
+      for (int b = row_band[r.y0]; b <= row_band[r.y1 - 1]; ++b)
+        band_ids[c * bands_per_cam + b].push_back(n);
+    }
+  });
   torch::Tensor toff_t = torch::zeros({C * T + 1}, lopt);
   int64_t* toff = toff_t.data_ptr<int64_t>();
   parallel_dynamic(units, [&](int64_t u) {
@@ -218,10 +319,11 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
     int r0, r1;
     band_rows(u, r0, r1);
     int64_t* cnt = toff + 1 + c * T;
-    for (int32_t n : order[c]) {
+    for (int32_t n : band_ids[u]) {
       const Rect& r = rects[c * N + n];
+      const Span* sp = spans.data() + soff[c * N + n];
       for (int y = std::max(r.y0, r0); y < std::min(r.y1, r1); ++y)
-        for (int x = r.x0; x < r.x1; ++x) cnt[int64_t(y) * tiles_x + x]++;
+        for (int x = sp[y - r.y0].x0; x < sp[y - r.y0].x1; ++x) cnt[int64_t(y) * tiles_x + x]++;
     }
   });
   for (int64_t t = 0; t < C * T; ++t) toff[t + 1] += toff[t];
@@ -235,15 +337,15 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
     int r0, r1;
     band_rows(u, r0, r1);
     std::vector<int64_t> cursor(toff + c * T + int64_t(r0) * tiles_x, toff + c * T + int64_t(r1) * tiles_x);
-    for (int32_t n : order[c]) {
+    for (int32_t n : band_ids[u]) {
       const Rect& r = rects[c * N + n];
-      const int w = r.x1 - r.x0;
       int64_t* gp = gpos + goff[c * N + n];
+      const Span* sp = spans.data() + soff[c * N + n];
       for (int y = std::max(r.y0, r0); y < std::min(r.y1, r1); ++y)
-        for (int x = r.x0; x < r.x1; ++x) {
+        for (int x = sp[y - r.y0].x0; x < sp[y - r.y0].x1; ++x) {
           const int64_t pos = cursor[int64_t(y - r0) * tiles_x + x]++;
           gid[pos] = n;
-          gp[int64_t(y - r.y0) * w + (x - r.x0)] = pos;
+          gp[sp[y - r.y0].rank + (x - sp[y - r.y0].x0)] = pos;
         }
     }
   });
