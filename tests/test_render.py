@@ -239,6 +239,20 @@ def test_determinism_across_runs_and_threads(cpu_ext):
             assert torch.equal(a, b)
 
 
+def test_fixed_cameras_skip_the_pose_gradient_and_change_nothing_else(cpu_ext):
+    W, H = 64, 48
+    scene = random_scene(800, W, H, cams=2, seed=5)
+    weights = torch.randn(2, H, W, 5, dtype=torch.float64, generator=torch.Generator().manual_seed(6))
+    _, with_pose = _grads(scene, W, H, "cpu", torch.float32, weights)
+    inputs = [t.detach().float().clone().requires_grad_(i < 5) for i, t in enumerate(scene[:6])]
+    out = render(*inputs, scene[6].float(), W, H, sh_degree=3, backend="cpu")
+    (_outputs(out) * weights.float()).sum().backward()
+    assert inputs[5].grad is None
+    assert float(with_pose[5].abs().sum()) > 0
+    for a, b in zip(with_pose[:5], [t.grad for t in inputs[:5]], strict=True):
+        assert torch.equal(a, b)
+
+
 def test_build_key_and_missing_compiler(monkeypatch, tmp_path):
     from go_core.render import build
 

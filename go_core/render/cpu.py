@@ -40,7 +40,7 @@ class _ProjectCPU(torch.autograd.Function):
             _f32(g) if g is not None else torch.zeros(s)
             for g, s in zip((g_m2, g_con, g_col, g_op, g_dep), shapes, strict=True)
         ]
-        out = ext.project_backward(*inputs, *ctx.settings, *grads)
+        out = ext.project_backward(*inputs, *ctx.settings, *grads, bool(ctx.needs_input_grad[5]))
         return (*[g.to(dt) for g, dt in zip(out, ctx.dtypes, strict=True)], None, None)
 
 

@@ -249,20 +249,22 @@ std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor qu
 }
 
 // Backward: (d means [N,3], d quats [N,4], d scales [N,3], d opacities [N], d colors (like colors),
-//            d viewmats [C,4,4]).
+//            d viewmats [C,4,4]; zeros unless pose_grad).
 std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
                                             torch::Tensor opacities, torch::Tensor colors, torch::Tensor viewmats,
                                             torch::Tensor Ks, int64_t width, int64_t height, double near,
                                             double far, double eps2d, bool antialiased, int64_t sh_degree,
                                             torch::Tensor g_means2d, torch::Tensor g_conics, torch::Tensor g_colors,
-                                            torch::Tensor g_opac, torch::Tensor g_depths) {
+                                            torch::Tensor g_opac, torch::Tensor g_depths,
+                                            bool pose_grad) {
   const int64_t N = means.size(0), C = viewmats.size(0);
   const int64_t K = sh_degree >= 0 ? colors.size(1) : 0;
   const Settings st{width, height, near, far, eps2d, antialiased, static_cast<int>(sh_degree)};
   auto fopt = torch::TensorOptions().dtype(torch::kFloat32);
-  torch::Tensor dm = torch::zeros({N, 3}, fopt), dq = torch::zeros({N, 4}, fopt), ds = torch::zeros({N, 3}, fopt);
-  torch::Tensor dop = torch::zeros({N}, fopt), dcol = torch::zeros_like(colors);
-  torch::Tensor pose_rows = torch::zeros({C, N, 12}, torch::TensorOptions().dtype(torch::kFloat64));
+  // every Gaussian (and every camera-Gaussian pose row) is written below
+  torch::Tensor dm = torch::empty({N, 3}, fopt), dq = torch::empty({N, 4}, fopt), ds = torch::empty({N, 3}, fopt);
+  torch::Tensor dop = torch::empty({N}, fopt), dcol = torch::empty_like(colors);
+  torch::Tensor pose_rows = torch::empty({pose_grad ? C : 0, N, 12}, torch::TensorOptions().dtype(torch::kFloat64));
   const float *pm = means.data_ptr<float>(), *pq = quats.data_ptr<float>(), *ps = scales.data_ptr<float>();
   const float *po = opacities.data_ptr<float>(), *pc = colors.data_ptr<float>();
   const float *pv = viewmats.data_ptr<float>(), *pk = Ks.data_ptr<float>();
@@ -344,10 +346,11 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
           dopac += go;
         }
         if (!g.in_depth) {
-          for (int a = 0; a < 3; ++a) {
-            for (int b = 0; b < 3; ++b) rows[12 * i + 3 * a + b] = dR[a][b];
-            rows[12 * i + 9 + a] = dt[a];
-          }
+          if (pose_grad)
+            for (int a = 0; a < 3; ++a) {
+              for (int b = 0; b < 3; ++b) rows[12 * i + 3 * a + b] = dR[a][b];
+              rows[12 * i + 9 + a] = dt[a];
+            }
           continue;
         }
 
@@ -435,10 +438,11 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
           for (int b = 0; b < 3; ++b) dR[a][b] += dp[a] * pm[3 * n + b];
           dt[a] += dp[a];
         }
-        for (int a = 0; a < 3; ++a) {
-          for (int b = 0; b < 3; ++b) rows[12 * i + 3 * a + b] = dR[a][b];
-          rows[12 * i + 9 + a] = dt[a];
-        }
+        if (pose_grad)
+          for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b) rows[12 * i + 3 * a + b] = dR[a][b];
+            rows[12 * i + 9 + a] = dt[a];
+          }
       }
       // normalisation of the quaternion: q / max(|q|, eps)
       const double inv = 1.0 / std::max(g.qnorm, NORM_EPS);
@@ -456,12 +460,15 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
       if (sh_degree >= 0) {
         const int nb = (sh_degree + 1) * (sh_degree + 1);
         for (int k = 0; k < nb * 3; ++k) odc[n * K * 3 + k] = float(dco[k]);
+        for (int k = nb * 3; k < K * 3; ++k) odc[n * K * 3 + k] = 0.0f;  // bands above the active degree
       } else {
         for (int ch = 0; ch < 3; ++ch) odc[3 * n + ch] = float(dco[ch]);
       }
     }
   });
 
+  torch::Tensor dvm = torch::zeros({C, 4, 4}, fopt);
+  if (!pose_grad) return {dm, dq, ds, dop, dcol, dvm};
   // Pose gradient: fixed blocks of Gaussians, summed in block order (independent of the thread count).
   const int64_t nblocks = (N + BLOCK - 1) / BLOCK;
   std::vector<double> partial(C * std::max<int64_t>(nblocks, 1) * 12, 0.0);
@@ -473,7 +480,6 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
         for (int q = 0; q < 12; ++q) acc[q] += rows[12 * (c * N + n) + q];
     }
   });
-  torch::Tensor dvm = torch::zeros({C, 4, 4}, fopt);
   float* pdv = dvm.data_ptr<float>();
   for (int64_t c = 0; c < C; ++c) {
     double acc[12] = {0};

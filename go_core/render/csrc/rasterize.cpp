@@ -360,10 +360,11 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
   const int tiles_y = static_cast<int>((height + TILE - 1) / TILE);
   const int64_t T = int64_t(tiles_x) * tiles_y;
   auto fopt = torch::TensorOptions().dtype(torch::kFloat32);
-  torch::Tensor out = torch::zeros({C, height, width, 4}, fopt);
-  torch::Tensor alpha = torch::zeros({C, height, width, 1}, fopt);
-  torch::Tensor tfinal = torch::ones({C, height, width}, fopt);
-  torch::Tensor stop = torch::zeros({C, height, width}, torch::TensorOptions().dtype(torch::kInt32));
+  // every pixel is written by its tile below
+  torch::Tensor out = torch::empty({C, height, width, 4}, fopt);
+  torch::Tensor alpha = torch::empty({C, height, width, 1}, fopt);
+  torch::Tensor tfinal = torch::empty({C, height, width}, fopt);
+  torch::Tensor stop = torch::empty({C, height, width}, torch::TensorOptions().dtype(torch::kInt32));
   const float* P = params.data_ptr<float>();
   const int64_t* toff = tile_offsets.data_ptr<int64_t>();
   const int32_t* gid = isect_gid.data_ptr<int32_t>();
@@ -554,10 +555,11 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
     }
   });
 
-  torch::Tensor g_m = torch::zeros({C, N, 2}, fopt);
-  torch::Tensor g_c = torch::zeros({C, N, 3}, fopt);
-  torch::Tensor g_f = torch::zeros({C, N, 4}, fopt);
-  torch::Tensor g_o = torch::zeros({C, N}, fopt);
+  // every Gaussian is written by the reduction below
+  torch::Tensor g_m = torch::empty({C, N, 2}, fopt);
+  torch::Tensor g_c = torch::empty({C, N, 3}, fopt);
+  torch::Tensor g_f = torch::empty({C, N, 4}, fopt);
+  torch::Tensor g_o = torch::empty({C, N}, fopt);
   float *pm = g_m.data_ptr<float>(), *pc = g_c.data_ptr<float>(), *pf = g_f.data_ptr<float>();
   float* po = g_o.data_ptr<float>();
   const int64_t* goff = gauss_offsets.data_ptr<int64_t>();
@@ -592,7 +594,8 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
                                             torch::Tensor Ks, int64_t width, int64_t height, double near,
                                             double far, double eps2d, bool antialiased, int64_t sh_degree,
                                             torch::Tensor g_means2d, torch::Tensor g_conics, torch::Tensor g_colors,
-                                            torch::Tensor g_opac, torch::Tensor g_depths);
+                                            torch::Tensor g_opac, torch::Tensor g_depths,
+                                            bool pose_grad);
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "go-pipeline CPU Gaussian rasterizer";
