@@ -13,7 +13,8 @@ Every (case, backend) runs in a fresh subprocess.
   when other processes share the cores.
 * ``peak_mb``: peak resident memory above the footprint just before the first render (Linux's
   resettable VmHWM; GPU: torch.cuda.max_memory_allocated).
-* ``evals_per_s``: tile-Gaussian pairs x 256 pixels / forward seconds.
+* ``evals_per_s``: tile-Gaussian pairs of the 3-sigma rectangles (``pairs``) x 256 pixels / forward
+  seconds. ``pairs_binned`` (CPU backend): the pairs its binning keeps (tiles a Gaussian can reach).
 
 The reference backend runs only on ``--ref-cases`` and where its estimated time (from the first case)
 stays under ``--ref-budget-s``; its memory is bounded (checkpointed chunks), it is only slow.
@@ -120,11 +121,19 @@ def measure(case: str, backend: str, repeats: int) -> dict:
         peak = torch.cuda.max_memory_allocated() / 2**20
     else:
         peak = _peak_rss_mb() - base
-    with torch.no_grad():  # tile-Gaussian pairs per forward (the binning every CPU backend uses)
+    with torch.no_grad():  # tile-Gaussian pairs per forward: 3-sigma rectangles (reference binning)
         proj = project_gaussians(*[t.cpu() for t in scene], size, size, sh_degree=3)
         pairs = int(
             bin_gaussians(proj.means2d[0], proj.depths[0], proj.radii[0], size, size).gauss_ids.numel()
         )
+        extra = {}
+        if backend == "cpu":  # the compiled binning drops the rectangle tiles a Gaussian cannot reach
+            from go_core.render.build import load_extension
+
+            feats = torch.cat([proj.colors, proj.depths[..., None]], -1)
+            inputs = [t.float().contiguous() for t in (proj.means2d, proj.conics, feats, proj.opacities)]
+            binned = load_extension().bin_and_pack(*inputs, proj.depths.float(), proj.radii.int(), size, size)
+            extra["pairs_binned"] = int(binned[2].numel())
     f = statistics.median(fwd)
     return {
         "case": case,
@@ -134,6 +143,7 @@ def measure(case: str, backend: str, repeats: int) -> dict:
         "peak_mb": round(peak, 1),
         "evals_per_s": float(f"{pairs * 256 / f:.4g}"),
         "pairs": pairs,
+        **extra,
         # CPU seconds of all threads (robust to other processes sharing the cores; wall ≥ this / threads)
         "fwd_cpu_ms": round(1e3 * statistics.median(cpu_fwd), 2),
         "fwdbwd_cpu_ms": round(1e3 * statistics.median(cpu_fwdbwd), 2),
@@ -201,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
                 ref_rate = rec["fwdbwd_ms"] / 1e3 / CASES[case][0]
             print(
                 f"{case:9s} {backend:10s} fwd {rec['fwd_ms']:9.1f} ms  fwd+bwd {rec['fwdbwd_ms']:9.1f} ms  "
-                f"peak {rec['peak_mb']:7.0f} MB  {rec['evals_per_s']:.3g} evals/s  ({rec['pairs']} pairs, "
+                f"peak {rec['peak_mb']:7.0f} MB  {rec['evals_per_s']:.3g} evals/s  ({rec['pairs']} pairs"
+                f"{', ' + str(rec['pairs_binned']) + ' binned' if 'pairs_binned' in rec else ''}, "
                 f"{rec['threads']} threads)",
                 flush=True,
             )
