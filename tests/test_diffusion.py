@@ -121,6 +121,6 @@ def test_sds_gradient_is_weighted_noise_residual(weights):
         tt = torch.tensor([400])
         eps = d.predict_noise(d.scheduler.add_noise(z0, noise, tt), tt, img, d.text_embeddings())
         w = 1.0 - float(d.scheduler.alphas_cumprod[400])
-    assert float(loss) == pytest.approx(0.5 * float(((w * (eps - noise)) ** 2).sum()), rel=1e-5)
+    assert float(loss.detach()) == pytest.approx(0.5 * float(((w * (eps - noise)) ** 2).sum()), rel=1e-5)
     loss.backward()
     assert img.grad is not None and float(img.grad.abs().sum()) > 0  # flows back through the VAE encoder
