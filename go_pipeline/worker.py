@@ -1,7 +1,8 @@
 """Child-process entry point that runs one step: ``python -m go_pipeline.worker EVENT_FD < spec.json``.
 
-Running each step in its own process gives an honest per-step peak memory and CPU time (the parent reads
-them with ``os.wait4``) and returns the step's memory to the OS afterwards. The child dies with its parent
+Running each step in its own process gives an honest per-step peak memory and CPU time (measured by the
+child itself, see ``own_usage``; ``os.wait4`` in the parent is the fallback) and returns the step's memory
+to the OS afterwards. The child dies with its parent
 (PR_SET_PDEATHSIG), so a killed CLI never leaves a step writing into the work dir.
 """
 
@@ -12,6 +13,7 @@ import importlib
 import json
 import logging
 import os
+import resource
 import signal
 import sys
 import threading
@@ -70,6 +72,26 @@ def run_step_in_process(spec: dict, sink, log: logging.Logger):
     return ctx
 
 
+def rasterizer_build_seconds() -> float:
+    """Seconds this process spent compiling the CPU rasterizer (0 if it never loaded it)."""
+    build = sys.modules.get("go_core.render.build")
+    return float(build.BUILD_TIME.seconds) if build is not None else 0.0
+
+
+def own_usage() -> dict[str, float]:
+    """CPU seconds and peak memory of this process alone, and the one-time rasterizer build time in it.
+
+    The parent's wait4 figures also cover this process's children: a step that triggers the one-time C++
+    build of the rasterizer would otherwise report the compiler's ~1.5 GB and CPU time as its own.
+    """
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return {
+        "self_cpu_s": usage.ru_utime + usage.ru_stime,
+        "self_peak_mb": usage.ru_maxrss / 1024.0,  # KiB on Linux
+        "build_s": rasterizer_build_seconds(),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     event_fd = int(argv[0])
@@ -87,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     log.addHandler(SinkLogHandler(sink))
     try:
         ctx = run_step_in_process(spec, sink, log)
-        sink.send({"type": "done", "device": ctx.resolved_device()})
+        sink.send({"type": "done", "device": ctx.resolved_device(), **own_usage()})
         code = EXIT_OK
     except KeyboardInterrupt:
         code = 130

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -251,6 +252,34 @@ def test_fixed_cameras_skip_the_pose_gradient_and_change_nothing_else(cpu_ext):
     assert float(with_pose[5].abs().sum()) > 0
     for a, b in zip(with_pose[:5], [t.grad for t in inputs[:5]], strict=True):
         assert torch.equal(a, b)
+
+
+def test_build_time_counts_only_real_builds(monkeypatch, tmp_path):
+    import time as _time
+
+    from torch.utils import cpp_extension
+
+    from go_core.render import build
+
+    def fake_load(name, build_directory, **_):
+        _time.sleep(0.2)  # stands for compiling
+        (Path(build_directory) / f"{name}.so").write_bytes(b"")
+        return "module"
+
+    monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
+    monkeypatch.setattr(cpp_extension, "load", fake_load)
+    before = build.BUILD_TIME.seconds
+    try:
+        build.load_extension.cache_clear()
+        assert build.load_extension() == "module"
+        built = build.BUILD_TIME.seconds - before
+        assert 0.2 <= built < 2.0
+        build.load_extension.cache_clear()
+        build.load_extension()  # the .so is there now: only a load, no build time
+        assert build.BUILD_TIME.seconds - before == built
+    finally:
+        build.load_extension.cache_clear()  # the real extension again for later tests
+        build.BUILD_TIME.seconds = before
 
 
 def test_build_key_and_missing_compiler(monkeypatch, tmp_path):

@@ -16,6 +16,8 @@ import os
 import platform
 import shutil
 import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 CSRC = Path(__file__).resolve().parent / "csrc"
@@ -26,6 +28,17 @@ LDFLAGS = ("-fopenmp",)
 
 class ExtensionBuildError(RuntimeError):
     """The compiled CPU rasterizer could not be built (no compiler, compile error)."""
+
+
+@dataclass
+class BuildTime:
+    """Seconds this process spent compiling the extension (0 when it was only loaded). A one-time cost
+    that whoever times a piece of work (e.g. the pipeline runner timing a step) can report apart."""
+
+    seconds: float = 0.0
+
+
+BUILD_TIME = BuildTime()
 
 
 def _cpu_flags() -> str:
@@ -81,8 +94,10 @@ def load_extension(verbose: bool = False):
     name = f"go_raster_cpu_{build_key()}"
     build_dir = build_root() / name
     build_dir.mkdir(parents=True, exist_ok=True)
+    built_before = any(build_dir.glob(f"{name}*.so"))
+    t0 = time.perf_counter()
     try:
-        return cpp_extension.load(
+        module = cpp_extension.load(
             name=name,
             sources=[str(CSRC / s) for s in SOURCES],
             extra_cflags=list(CFLAGS),
@@ -92,6 +107,9 @@ def load_extension(verbose: bool = False):
         )
     except Exception as exc:  # compile/link errors come as RuntimeError/CalledProcessError
         raise ExtensionBuildError(f"building the CPU rasterizer in {build_dir} failed: {exc}") from exc
+    if not built_before:
+        BUILD_TIME.seconds += time.perf_counter() - t0
+    return module
 
 
 def main() -> int:
