@@ -2,8 +2,8 @@
 
 Running each step in its own process gives an honest per-step peak memory and CPU time (measured by the
 child itself, see ``own_usage``; ``os.wait4`` in the parent is the fallback) and returns the step's memory
-to the OS afterwards. The child dies with its parent
-(PR_SET_PDEATHSIG), so a killed CLI never leaves a step writing into the work dir.
+to the OS afterwards. The child dies with its parent (PR_SET_PDEATHSIG), so a killed CLI never leaves a step
+writing into the work dir.
 """
 
 from __future__ import annotations
