@@ -166,14 +166,12 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
     wall = time.perf_counter() - t0
     for t in threads:
         t.join(timeout=5)
-    # wait4 covers the child's own children too (e.g. the compiler of a one-time rasterizer build): prefer
-    # the figures the child measured of itself
-    cpu = usage.ru_utime + usage.ru_stime
-    peak = usage.ru_maxrss / 1024.0  # KiB on Linux
+    # wait4 covers the child's own children too (e.g. the compiler of a one-time rasterizer build) and its
+    # ru_maxrss starts from this process's RSS at the fork: prefer the figures the child measured of itself
+    cpu = float(outcome.get("self_cpu_s", usage.ru_utime + usage.ru_stime))
+    peak = float(outcome.get("self_peak_mb", usage.ru_maxrss / 1024.0))  # ru_maxrss: KiB on Linux
+    wall = _set_apart_build(wall, float(outcome.get("build_s", 0.0)), spec, display, records)
     if proc.returncode == 0 and outcome.get("type") == "done":
-        cpu = float(outcome.get("self_cpu_s", cpu))
-        peak = float(outcome.get("self_peak_mb", peak))
-        wall = _set_apart_build(wall, float(outcome.get("build_s", 0.0)), spec, display, records)
         return Execution(True, wall, cpu, peak, outcome.get("device", "cpu"), records)
     if outcome.get("type") == "error":
         return Execution(

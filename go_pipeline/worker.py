@@ -87,9 +87,22 @@ def own_usage() -> dict[str, float]:
     usage = resource.getrusage(resource.RUSAGE_SELF)
     return {
         "self_cpu_s": usage.ru_utime + usage.ru_stime,
-        "self_peak_mb": usage.ru_maxrss / 1024.0,  # KiB on Linux
+        "self_peak_mb": _peak_rss_mb(usage),
         "build_s": rasterizer_build_seconds(),
     }
+
+
+def _peak_rss_mb(usage) -> float:
+    """Peak resident memory of this process image. Linux's VmHWM starts afresh at exec; ru_maxrss does not:
+    it keeps the high-water mark of the image the process was started from (the parent's RSS at fork/vfork,
+    e.g. a 1 GB test runner), so it is only the fallback."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    return usage.ru_maxrss / 1024.0  # KiB on Linux
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
                 "exc_type": type(e).__name__,
                 "message": str(e),
                 "traceback": traceback.format_exc(),
+                **own_usage(),
             }
         )
         code = EXIT_GO_ERROR if is_go else EXIT_CRASH
