@@ -112,6 +112,13 @@ static inline Rect tile_rect(float mx, float my, int32_t radius, int tiles_x, in
           clampi(std::floor((my - r) / TILE), tiles_y), clampi(std::ceil((my + r) / TILE), tiles_y)};
 }
 
+// Half-width, with the margins that cover the float rounding of the per-pixel evaluation, of the interval of
+// a pixel row where sigma <= thr: sqrt(q / a), q = 2 thr - dy² det/a (see rows_may_hit). Shared by the row
+// test and the binning's strip bounds so that both keep the same margins.
+static inline float reach_half_width(float q, float inv_a) {
+  return std::sqrt(std::max(q, 0.0f) * inv_a) * 1.0001f + 0.01f;
+}
+
 // Conservative test whether a pixel of the 16-pixel tile row at offset dy = my - y (pixel centres x0+0.5 ..
 // x0+15.5) can reach alpha >= 1/255, i.e. sigma <= log(255 o). Along the row sigma(dx) is a parabola; its
 // sub-threshold interval of pixel x is centre mx + (b/a) dy, half-width sqrt((2 thr - dy² det/a) / a).
@@ -125,7 +132,7 @@ static inline void rows_may_hit(const float* g, float x0, float y0, int32_t* hit
     const float dy2 = dy * dy;
     const float thr = lthr + 1e-2f + 1e-5f * cc * dy2;
     const float q = 2.0f * thr - det_a * dy2;
-    const float hw = std::sqrt(std::max(q, 0.0f) * inv_a) * 1.0001f + 0.01f;
+    const float hw = reach_half_width(q, inv_a);
     const float cx = mx + b_a * dy;
     hit[r] = (q >= 0.0f) & (cx + hw >= x0 + 0.5f) & (cx - hw <= x0 + (TILE - 0.5f));
   }
@@ -160,9 +167,7 @@ struct StripSpans {
     keep_all = !(V < 1e30f && std::fabs(vr) < 1e30f && xr < 1e30f);
   }
 
-  float half_width(float v) const {
-    return std::sqrt(std::max(T2 - det_a * v * v, 0.0f) * inv_a) * 1.0001f + 0.01f;
-  }
+  float half_width(float v) const { return reach_half_width(T2 - det_a * v * v, inv_a); }
 
   // x-range of the strip of pixel rows y0+0.5 .. y0+15.5; lo > hi: out of reach.
   void range(float y0, float& lo, float& hi) const {
