@@ -14,6 +14,8 @@ import os
 import pkgutil
 import sys
 
+from go_pipeline.openmp import set_default_wait
+
 CORE_COMMANDS = ("run", "status", "clean", "validate")
 
 
@@ -51,7 +53,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads libgomp (--in-process steps)
+    set_default_wait(os.environ)  # before torch loads libgomp (--in-process steps)
     debug = "--debug" in argv
     first = next((a for a in argv if not a.startswith("-")), None)
     only = first if first in command_names() else None

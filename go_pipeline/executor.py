@@ -17,6 +17,7 @@ from typing import Any
 
 from go_core.errors import GoError
 from go_pipeline.display import Display
+from go_pipeline.openmp import set_default_wait
 from go_pipeline.worker import rasterizer_build_seconds
 
 
@@ -106,10 +107,7 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
     outcome: dict[str, Any] = {}
     read_fd, write_fd = os.pipe()
     env = dict(os.environ)
-    # libgomp's default busy-waiting makes the compiled rasterizer ~7x slower when cores are shared
-    # (measured: 448 ms vs 65 ms fwd+bwd at 50k Gaussians, 256², docs/rendering.md); it must be set before
-    # torch loads libgomp, i.e. in the child's environment.
-    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    set_default_wait(env)  # libgomp reads it when torch loads it: in the child's environment
     env.setdefault("PYTHONUNBUFFERED", "1")
     t0 = time.perf_counter()
     proc = subprocess.Popen(

@@ -5,10 +5,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-# Before torch loads libgomp: busy-waiting OpenMP threads slow the compiled rasterizer ~7x on shared cores.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 import pytest
+
+from go_pipeline.openmp import set_default_wait
+
+set_default_wait(os.environ)  # before torch loads libgomp (see go_pipeline/openmp.py)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
