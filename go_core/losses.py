@@ -137,6 +137,92 @@ def ssim(img1: torch.Tensor, img2: torch.Tensor, *, channels_last: bool = False)
     return ssim_map(a, b).mean()
 
 
+class _TermsKernel(torch.autograd.Function):
+    """(SSIM, L1, BCE) of one [H,W,C] float32 CPU pair (and an [H,W] alpha/mask, or empty tensors) by the
+    compiled kernel in one pass each way; gradients for the image and alpha only."""
+
+    @staticmethod
+    def forward(ctx, x, y, alpha, mask, eps: float, need_grad: bool):
+        lo, hi = eps, 1.0 - eps
+        s, l1v, bce, partials = _ssim_ops().terms_forward(
+            x, y, _window64(), SSIM_C1, SSIM_C2, alpha, mask, lo, hi, need_grad
+        )
+        if need_grad:
+            ctx.save_for_backward(x, y, partials, alpha, mask)
+        ctx.bounds = (lo, hi)
+        return s.to(x.dtype), l1v.to(x.dtype), bce.to(x.dtype)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_ssim, g_l1, g_bce):
+        x, y, partials, alpha, mask = ctx.saved_tensors
+        n = x.numel()
+        gx, ga = _ssim_ops().terms_backward(
+            x,
+            y,
+            partials,
+            _window64(),
+            float(g_ssim) / n,
+            float(g_l1) / n,
+            alpha,
+            mask,
+            *ctx.bounds,
+            float(g_bce) / max(alpha.numel(), 1),
+        )
+        return gx, None, ga if alpha.numel() else None, None, None, None
+
+
+def _terms_kernel_applies(pred, target, alpha, mask) -> bool:
+    """Whether ``photometric_terms`` runs the compiled kernel: float32 CPU [H,W,3] images (constant target),
+    float32 CPU alpha/mask of H·W elements (constant mask)."""
+    grad = torch.is_grad_enabled()
+    ok = (
+        pred.dim() == 3
+        and pred.shape[-1] == 3
+        and pred.numel() > 0
+        and pred.shape == target.shape
+        and all(t.device.type == "cpu" and t.dtype == torch.float32 for t in (pred, target))
+        and not (target.requires_grad and grad)
+    )
+    if ok and alpha is not None:
+        hw = pred.shape[0] * pred.shape[1]
+        ok = not (mask.requires_grad and grad) and all(
+            t.device.type == "cpu" and t.dtype == torch.float32 and t.numel() == hw for t in (alpha, mask)
+        )
+    return ok
+
+
+def photometric_terms(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    alpha: torch.Tensor | None = None,
+    mask: torch.Tensor | None = None,
+    eps: float = 1e-6,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """The per-pixel terms of the coarse loss for one view: ``(l1(pred, target), ssim(pred, target),
+    mask_bce(alpha, mask, eps))``, the last None without ``alpha``/``mask``.
+
+    ``pred``/``target`` are [H,W,3] (the renderer's layout), ``alpha`` any shape of H·W elements (e.g. the
+    renderer's [H,W] or [1,H,W,1]), ``mask`` [H,W]. A float32 CPU view runs all three in one compiled pass
+    forward and one backward (go_core/render/csrc/ssim.cpp: SSIM and L1 in float64 sums, BCE per pixel in
+    float64), instead of ~30 small torch ops; anything else runs the three torch functions.
+    """
+    if (alpha is None) != (mask is None):
+        raise ValueError("photometric_terms: give both alpha and mask, or neither")
+    if not _terms_kernel_applies(pred, target, alpha, mask):
+        bce = mask_bce(alpha, mask, eps) if alpha is not None else None
+        return l1(pred, target), ssim(pred, target), bce
+    h, w = pred.shape[:2]
+    if alpha is None:
+        a = m = pred.new_empty(0)
+    else:
+        a, m = alpha.reshape(h, w).contiguous(), mask.detach().reshape(h, w).contiguous()
+    need_grad = torch.is_grad_enabled() and (pred.requires_grad or a.requires_grad)
+    x, y = pred.contiguous(), target.detach().contiguous()
+    s, l1v, bce = _TermsKernel.apply(x, y, a, m, float(eps), need_grad)
+    return l1v, s, bce if alpha is not None else None
+
+
 def l1(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
     """Mean absolute error; with ``weight`` (broadcastable), a weighted mean."""
     d = (pred - target).abs()
@@ -217,6 +303,7 @@ __all__ = [
     "mask_bce",
     "normalize_depth",
     "photometric_loss",
+    "photometric_terms",
     "ssim",
     "ssim_map",
 ]

@@ -40,7 +40,7 @@ from go_core.camera import Camera
 from go_core.densify import DensifyConfig, DensifyStrategy
 from go_core.floaters import FloaterConfig, floater_mask
 from go_core.gaussians import Gaussians
-from go_core.losses import depth_loss, l1, mask_bce, ssim
+from go_core.losses import depth_loss, photometric_terms
 from go_core.optim import GaussianOptimizer, LearningRates
 
 CHECKPOINT_FORMAT = 1
@@ -172,19 +172,18 @@ def view_loss(
     """The coarse loss for one rendered view (see the module docstring). Returns (loss, its parts)."""
     rgb = out.rgb[0]  # [H,W,3]
     alpha = out.alpha[0, ..., 0]  # [H,W]
-    if view.mask is not None:
-        m = view.mask[..., None]
-        gt = view.image * m + background * (1.0 - m)
+    if view.mask is not None:  # the GT over the same background: image·m + bg·(1 - m)
+        bg = background.to(view.image.dtype).expand_as(view.image)
+        gt = torch.lerp(bg, view.image, view.mask[..., None])
     else:
         gt = view.image
-    l1v = l1(rgb, gt)
-    ssv = ssim(rgb.permute(2, 0, 1)[None], gt.permute(2, 0, 1)[None])
+    lam_m = config.lambda_mask if view.mask_weight is None else view.mask_weight
+    use_bce = view.mask is not None and lam_m > 0
+    l1v, ssv, bce = photometric_terms(rgb, gt, alpha if use_bce else None, view.mask if use_bce else None)
     photo = (1.0 - config.lambda_dssim) * l1v + config.lambda_dssim * (1.0 - ssv)
     loss = view.weight * photo
     parts = {"l1": l1v.item(), "ssim": ssv.item()}
-    lam_m = config.lambda_mask if view.mask_weight is None else view.mask_weight
-    if view.mask is not None and lam_m > 0:
-        bce = mask_bce(alpha, view.mask)
+    if bce is not None:
         loss = loss + lam_m * bce
         parts["mask_bce"] = bce.item()
     if view.depth is not None and config.lambda_depth > 0:

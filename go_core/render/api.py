@@ -111,6 +111,11 @@ def render(
         acc, alpha = rasterize(
             proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
         )
+        if kind == "cpu" and not (background is not None and background.requires_grad):
+            from go_core.render.cpu import finish_cpu
+
+            rgb, depth, alpha = finish_cpu(acc, alpha, background, DEPTH_EPS)
+            return RenderOutput(rgb, alpha, depth, proj.means2d, proj.radii)
         depth = acc[..., 3:4] / torch.clamp_min(alpha, DEPTH_EPS)
         out = RenderOutput(acc[..., :3], alpha, depth, proj.means2d, proj.radii)
     if background is not None:

@@ -122,3 +122,46 @@ def rasterize_cpu(
     if means2d.device.type != "cpu":
         raise ValueError(f"backend='cpu' needs CPU tensors, got {means2d.device}")
     return _RasterizeCPU.apply(means2d, conics, feats, opacities, depths, radii, int(width), int(height))
+
+
+class _FinishCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, feats, alpha, background, eps):
+        ctx.set_materialize_grads(False)
+        ext = load_extension()
+        f, a = _f32(feats), _f32(alpha)
+        bg = background if background is not None else torch.empty(0)
+        rgb, depth, alpha_out = ext.finish_forward(f, a, bg, eps)
+        ctx.save_for_backward(f, a, bg)
+        ctx.eps = eps
+        ctx.dtype = feats.dtype
+        return rgb.to(feats.dtype), depth.to(feats.dtype), alpha_out.to(feats.dtype)
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_depth, g_alpha):
+        f, a, bg = ctx.saved_tensors
+        empty = torch.empty(0)
+        if g_rgb is None:
+            g_rgb = torch.zeros(f.shape[:-1] + (3,))
+        g_f, g_a = load_extension().finish_backward(
+            f,
+            a,
+            bg,
+            ctx.eps,
+            _f32(g_rgb),
+            empty if g_depth is None else _f32(g_depth),
+            empty if g_alpha is None else _f32(g_alpha),
+        )
+        return g_f.to(ctx.dtype), g_a.to(ctx.dtype), None, None
+
+
+def finish_cpu(
+    feats: torch.Tensor, alpha: torch.Tensor, background: torch.Tensor | None, depth_eps: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The rasterizer's [C,H,W,4] features (RGB + depth) and alpha → (rgb over ``background``, expected depth
+    ``acc_d / max(alpha, depth_eps)``, alpha), as the API's torch code computes them, in one compiled pass
+    each way. ``background``: None, [3] or [C,3], constant (no gradient)."""
+    bg = None
+    if background is not None:
+        bg = _f32(background).reshape(-1, 3).expand(feats.shape[0], 3).contiguous()
+    return _FinishCPU.apply(feats, alpha, bg, float(depth_eps))

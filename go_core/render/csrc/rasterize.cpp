@@ -593,6 +593,66 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
   return {g_m, g_c, g_f, g_o};
 }
 
+// Splits the composited features into the render's outputs: rgb over a background (rgb + (1 - alpha) bg;
+// bg [C,3] or empty for none), the expected depth acc_d / max(alpha, eps) and a copy of alpha (so that one
+// autograd node owns all three). One pass instead of ~6 torch ops each way. Returns (rgb [C,H,W,3],
+// depth [C,H,W,1], alpha [C,H,W,1]).
+std::vector<torch::Tensor> finish_forward(torch::Tensor feats, torch::Tensor alpha, torch::Tensor bg, double eps) {
+  const int64_t C = feats.size(0), HW = feats.size(1) * feats.size(2);
+  auto fopt = torch::TensorOptions().dtype(torch::kFloat32);
+  torch::Tensor rgb = torch::empty({C, feats.size(1), feats.size(2), 3}, fopt);
+  torch::Tensor depth = torch::empty({C, feats.size(1), feats.size(2), 1}, fopt);
+  torch::Tensor alpha_out = torch::empty_like(alpha);
+  const float *pf = feats.data_ptr<float>(), *pa = alpha.data_ptr<float>();
+  const float* pb = bg.numel() ? bg.data_ptr<float>() : nullptr;
+  float *pr = rgb.data_ptr<float>(), *pd = depth.data_ptr<float>(), *po = alpha_out.data_ptr<float>();
+  const float feps = static_cast<float>(eps);
+  at::parallel_for(0, C * HW, 1 << 16, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      const float a = pa[i], t = 1.0f - a;
+      const float* f = pf + 4 * i;
+      const float* bgc = pb ? pb + 3 * (i / HW) : nullptr;
+      for (int k = 0; k < 3; ++k) pr[3 * i + k] = bgc ? f[k] + t * bgc[k] : f[k];
+      pd[i] = f[3] / std::max(a, feps);
+      po[i] = a;
+    }
+  });
+  return {rgb, depth, alpha_out};
+}
+
+// Backward of finish_forward: (grad_feats [C,H,W,4], grad_alpha [C,H,W,1]); an empty grad_depth or
+// grad_alpha counts as zero.
+std::vector<torch::Tensor> finish_backward(torch::Tensor feats, torch::Tensor alpha, torch::Tensor bg, double eps,
+                                           torch::Tensor g_rgb, torch::Tensor g_depth, torch::Tensor g_alpha) {
+  const int64_t C = feats.size(0), HW = feats.size(1) * feats.size(2);
+  torch::Tensor g_feats = torch::empty_like(feats);
+  torch::Tensor g_a = torch::empty_like(alpha);
+  const float *pf = feats.data_ptr<float>(), *pa = alpha.data_ptr<float>();
+  const float* pb = bg.numel() ? bg.data_ptr<float>() : nullptr;
+  const float* gr = g_rgb.data_ptr<float>();
+  const float* gd = g_depth.numel() ? g_depth.data_ptr<float>() : nullptr;
+  const float* ga = g_alpha.numel() ? g_alpha.data_ptr<float>() : nullptr;
+  float *pgf = g_feats.data_ptr<float>(), *pga = g_a.data_ptr<float>();
+  const float feps = static_cast<float>(eps);
+  at::parallel_for(0, C * HW, 1 << 16, [&](int64_t b, int64_t e) {
+    for (int64_t i = b; i < e; ++i) {
+      const float a = pa[i];
+      const float* g = gr + 3 * i;
+      float ga_i = ga ? ga[i] : 0.0f;
+      if (pb) {
+        const float* bgc = pb + 3 * (i / HW);
+        ga_i -= g[0] * bgc[0] + g[1] * bgc[1] + g[2] * bgc[2];
+      }
+      for (int k = 0; k < 3; ++k) pgf[4 * i + k] = g[k];
+      const float den = std::max(a, feps), gdi = gd ? gd[i] : 0.0f;
+      pgf[4 * i + 3] = gdi / den;
+      if (gd && a >= feps) ga_i -= gdi * pf[4 * i + 3] / (den * den);
+      pga[i] = ga_i;
+    }
+  });
+  return {g_feats, g_a};
+}
+
 // project.cpp
 std::vector<torch::Tensor> project_forward(torch::Tensor means, torch::Tensor quats, torch::Tensor scales,
                                            torch::Tensor opacities, torch::Tensor colors, torch::Tensor viewmats,
@@ -611,6 +671,8 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("bin_and_pack", &bin_and_pack, "tile binning and parameter packing");
   m.def("rasterize_forward", &rasterize_forward, "forward compositing");
   m.def("rasterize_backward", &rasterize_backward, "backward of the compositing");
+  m.def("finish_forward", &finish_forward, "rgb over the background, expected depth");
+  m.def("finish_backward", &finish_backward, "backward of finish_forward");
   m.def("project_forward", &project_forward, "EWA projection and SH colours");
   m.def("project_backward", &project_backward, "backward of the projection");
 }

@@ -14,6 +14,11 @@
 // zero padding makes the filter self-adjoint), combined as scale * (G*A + 2x G*B + y G*C). Rows are
 // independent and the mean is reduced from per-row sums in row order, so results are bit-identical for any
 // thread count. Exposed as torch.ops.go_ssim.{forward,backward} (the rasterizer owns the pybind module).
+//
+// go_ssim.{terms_forward,terms_backward} add, in the same pass over the rows, the other per-pixel terms of
+// the coarse loss: mean |x - y| and the mean binary cross-entropy of an [H,W] alpha against an [H,W] mask
+// (alpha clamped to [lo, hi], as go_core/losses.py::mask_bce). One parallel region each way instead of
+// ~30 small torch ops (each of which must wake the OpenMP team, see go_pipeline/openmp.py).
 
 #include <torch/extension.h>
 #include <torch/library.h>
@@ -21,6 +26,7 @@
 #include <ATen/core/dispatch/Dispatcher.h>
 
 #include <algorithm>
+#include <cmath>
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -46,6 +52,32 @@ std::array<double, K> check_window(const torch::Tensor& window) {
 void check_image(const torch::Tensor& t, const char* name) {
   TORCH_CHECK(t.dim() == 3 && t.scalar_type() == torch::kFloat32 && t.device().is_cpu() && t.is_contiguous(),
               "ssim: ", name, " must be a contiguous float32 CPU tensor [H,W,C]");
+}
+
+// Optional per-row terms computed beside SSIM (see the header). Null pointers switch a term off.
+struct Extras {
+  double* l1_rows = nullptr;   // [H] sums of |x - y| over a row (forward)
+  const float* alpha = nullptr;  // [H,W]
+  const float* mask = nullptr;   // [H,W]
+  float lo = 0.0f, hi = 1.0f;    // alpha clamp bounds
+  double* bce_rows = nullptr;  // [H] BCE sums over a row (forward)
+  double l1_scale = 0.0;       // backward: gradient of l1_scale * sum|x - y| added to grad x
+  float* grad_alpha = nullptr;  // backward: [H,W] gradient of bce_scale * sum BCE
+  double bce_scale = 0.0;
+};
+
+// -(m log a + (1 - m) log(1 - a)) with a clamped to [lo, hi], as mask_bce.
+inline double bce_value(float alpha, float m, float lo, float hi) {
+  const double a = std::min(std::max(alpha, lo), hi);
+  const double l0 = std::log1p(-a);
+  return -(l0 + double(m) * (std::log(a) - l0));
+}
+
+// Its derivative w.r.t. alpha; zero where the clamp is active (torch's clamp passes the gradient on [lo, hi]).
+inline double bce_grad(float alpha, float m, float lo, float hi) {
+  if (!(alpha >= lo && alpha <= hi)) return 0.0;
+  const double a = alpha;
+  return -double(m) / a + (1.0 - double(m)) / (1.0 - a);
 }
 
 // Runs body(h0, h1, scratch) over blocks of rows [h0, h1), scheduled dynamically over at::get_num_threads()
@@ -109,7 +141,7 @@ inline double ssim_pixel(double m1, double m2, double e11, double e22, double e1
 
 template <int C, bool kGrad>
 double forward_impl(const float* x, const float* y, double* abc, int64_t H, int64_t W,
-                    const std::array<double, K>& g, double c1, double c2) {
+                    const std::array<double, K>& g, double c1, double c2, const Extras& ex = Extras()) {
   const int64_t L = W * C, P = R * C, HL = H * L;
   std::vector<double> row_sum(H);
   const std::vector<float> zeros(L, 0.0f);
@@ -163,6 +195,19 @@ double forward_impl(const float* x, const float* y, double* abc, int64_t H, int6
           s += ssim_pixel<false>(f0[j], f1[j], f2[j], f3[j], f4[j], c1, c2, nullptr, nullptr, nullptr);
       }
       row_sum[h] = s;
+      if (ex.l1_rows) {
+        const float *xh = x + h * L, *yh = y + h * L;
+        double d = 0.0;
+#pragma omp simd reduction(+ : d)
+        for (int64_t j = 0; j < L; ++j) d += std::fabs(double(xh[j]) - double(yh[j]));
+        ex.l1_rows[h] = d;
+      }
+      if (ex.bce_rows) {
+        const float *ah = ex.alpha + h * W, *mh = ex.mask + h * W;
+        double b = 0.0;
+        for (int64_t w = 0; w < W; ++w) b += bce_value(ah[w], mh[w], ex.lo, ex.hi);
+        ex.bce_rows[h] = b;
+      }
     }
   });
   double total = 0.0;
@@ -172,7 +217,7 @@ double forward_impl(const float* x, const float* y, double* abc, int64_t H, int6
 
 template <int C>
 void backward_impl(const float* x, const float* y, const double* abc, float* grad, int64_t H, int64_t W,
-                   const std::array<double, K>& g, double scale) {
+                   const std::array<double, K>& g, double scale, const Extras& ex = Extras()) {
   const int64_t L = W * C, P = R * C, HL = H * L;
   const std::vector<double> zeros(L, 0.0);
   for_row_blocks(H, L, 3 * (L + 2 * P) + 3 * L, [&](int64_t h0, int64_t h1, double* scratch) {
@@ -196,9 +241,19 @@ void backward_impl(const float* x, const float* y, const double* abc, float* gra
       hfilter_row<C>(v[1], f[1], L, g);
       hfilter_row<C>(v[2], f[2], L, g);
       const double *ga = f[0], *gb = f[1], *gc = f[2];
+      const double l1s = ex.l1_scale;
 #pragma omp simd
-      for (int64_t j = 0; j < L; ++j)
-        gh[j] = static_cast<float>(scale * (ga[j] + 2.0 * double(xh[j]) * gb[j] + double(yh[j]) * gc[j]));
+      for (int64_t j = 0; j < L; ++j) {
+        const double sgn = double((xh[j] > yh[j]) - (xh[j] < yh[j]));
+        gh[j] = static_cast<float>(scale * (ga[j] + 2.0 * double(xh[j]) * gb[j] + double(yh[j]) * gc[j]) +
+                                   l1s * sgn);
+      }
+      if (ex.grad_alpha) {
+        const float *ah = ex.alpha + h * W, *mh = ex.mask + h * W;
+        float* gah = ex.grad_alpha + h * W;
+        for (int64_t w = 0; w < W; ++w)
+          gah[w] = static_cast<float>(ex.bce_scale * bce_grad(ah[w], mh[w], ex.lo, ex.hi));
+      }
     }
   });
 }
@@ -253,6 +308,88 @@ torch::Tensor ssim_backward(const torch::Tensor& x, const torch::Tensor& y, cons
   return grad;
 }
 
+void check_alpha_mask(const torch::Tensor& x, const torch::Tensor& alpha, const torch::Tensor& mask) {
+  for (const auto* t : {&alpha, &mask})
+    TORCH_CHECK(t->dim() == 2 && t->scalar_type() == torch::kFloat32 && t->device().is_cpu() &&
+                    t->is_contiguous() && t->size(0) == x.size(0) && t->size(1) == x.size(1),
+                "ssim terms: alpha and mask must be contiguous float32 CPU tensors [H,W] of the image's size");
+}
+
+// SSIM, L1 and (when alpha has elements) BCE(alpha, mask) of one pair in one pass. Returns (mean SSIM,
+// mean |x - y|, mean BCE (0 without alpha), all float64 scalars; SSIM partials [3,H,W*C] or empty).
+std::vector<torch::Tensor> terms_forward(const torch::Tensor& x, const torch::Tensor& y,
+                                         const torch::Tensor& window, double c1, double c2,
+                                         const torch::Tensor& alpha, const torch::Tensor& mask, double lo,
+                                         double hi, bool need_grad) {
+  check_image(x, "x");
+  check_image(y, "y");
+  TORCH_CHECK(x.sizes() == y.sizes(), "ssim: image shapes differ");
+  TORCH_CHECK(x.numel() > 0, "ssim: empty image");
+  const bool bce = alpha.numel() > 0;
+  if (bce) check_alpha_mask(x, alpha, mask);
+  const auto g = check_window(window);
+  const int64_t H = x.size(0), W = x.size(1);
+  auto dopt = torch::TensorOptions().dtype(torch::kFloat64);
+  torch::Tensor abc = need_grad ? torch::empty({3, H, W * x.size(2)}, dopt) : torch::empty({0}, dopt);
+  std::vector<double> l1_rows(H), bce_rows(bce ? H : 0);
+  Extras ex;
+  ex.l1_rows = l1_rows.data();
+  if (bce) {
+    ex.alpha = alpha.data_ptr<float>();
+    ex.mask = mask.data_ptr<float>();
+    ex.lo = static_cast<float>(lo);
+    ex.hi = static_cast<float>(hi);
+    ex.bce_rows = bce_rows.data();
+  }
+  double total = 0.0;
+  dispatch_channels(x.size(2), [&](auto cc) {
+    constexpr int C = decltype(cc)::value;
+    const float *xp = x.data_ptr<float>(), *yp = y.data_ptr<float>();
+    total = need_grad ? forward_impl<C, true>(xp, yp, abc.data_ptr<double>(), H, W, g, c1, c2, ex)
+                      : forward_impl<C, false>(xp, yp, nullptr, H, W, g, c1, c2, ex);
+  });
+  double l1 = 0.0, b = 0.0;
+  for (int64_t h = 0; h < H; ++h) l1 += l1_rows[h];
+  for (double v : bce_rows) b += v;
+  const double n = double(x.numel());
+  return {torch::scalar_tensor(total / n, dopt), torch::scalar_tensor(l1 / n, dopt),
+          torch::scalar_tensor(bce ? b / double(H * W) : 0.0, dopt), abc};
+}
+
+// Gradients of ssim_scale * sum(SSIM map) + l1_scale * sum|x - y| w.r.t. x [H,W,C], and of
+// bce_scale * sum BCE(alpha, mask) w.r.t. alpha [H,W] (an empty tensor without alpha).
+std::vector<torch::Tensor> terms_backward(const torch::Tensor& x, const torch::Tensor& y,
+                                          const torch::Tensor& abc, const torch::Tensor& window,
+                                          double ssim_scale, double l1_scale, const torch::Tensor& alpha,
+                                          const torch::Tensor& mask, double lo, double hi, double bce_scale) {
+  check_image(x, "x");
+  check_image(y, "y");
+  const auto g = check_window(window);
+  TORCH_CHECK(y.sizes() == x.sizes() && abc.scalar_type() == torch::kFloat64 && abc.is_contiguous() &&
+                  abc.numel() == 3 * x.numel(),
+              "ssim: partials must be contiguous float64 [3,H,W*C]");
+  const bool bce = alpha.numel() > 0;
+  if (bce) check_alpha_mask(x, alpha, mask);
+  auto fopt = torch::TensorOptions().dtype(torch::kFloat32);
+  torch::Tensor grad = torch::empty(x.sizes(), fopt);
+  torch::Tensor grad_alpha = bce ? torch::empty(alpha.sizes(), fopt) : torch::empty({0}, fopt);
+  Extras ex;
+  ex.l1_scale = l1_scale;
+  if (bce) {
+    ex.alpha = alpha.data_ptr<float>();
+    ex.mask = mask.data_ptr<float>();
+    ex.lo = static_cast<float>(lo);
+    ex.hi = static_cast<float>(hi);
+    ex.grad_alpha = grad_alpha.data_ptr<float>();
+    ex.bce_scale = bce_scale;
+  }
+  dispatch_channels(x.size(2), [&](auto cc) {
+    backward_impl<decltype(cc)::value>(x.data_ptr<float>(), y.data_ptr<float>(), abc.data_ptr<double>(),
+                                       grad.data_ptr<float>(), x.size(0), x.size(1), g, ssim_scale, ex);
+  });
+  return {grad, grad_alpha};
+}
+
 // Registered once per process even if a second copy of this library is loaded (same ops, same code).
 struct Registrar {
   std::unique_ptr<torch::Library> lib;
@@ -263,6 +400,14 @@ struct Registrar {
              &ssim_forward);
     lib->def("backward(Tensor x, Tensor y, Tensor partials, Tensor window, float scale) -> Tensor",
              &ssim_backward);
+    lib->def(
+        "terms_forward(Tensor x, Tensor y, Tensor window, float c1, float c2, Tensor alpha, Tensor mask, "
+        "float lo, float hi, bool need_grad) -> Tensor[]",
+        &terms_forward);
+    lib->def(
+        "terms_backward(Tensor x, Tensor y, Tensor partials, Tensor window, float ssim_scale, float l1_scale, "
+        "Tensor alpha, Tensor mask, float lo, float hi, float bce_scale) -> Tensor[]",
+        &terms_backward);
   }
 };
 const Registrar registrar;
