@@ -22,7 +22,7 @@ from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
 from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
 
-VERSION = "2"  # 2: compiled SSIM kernel + fused Adam (results change at rounding level)
+VERSION = "3"  # 2: compiled SSIM kernel + fused Adam; 3: fused loss terms + render finish (rounding level)
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:

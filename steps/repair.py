@@ -28,7 +28,7 @@ from go_pipeline.steps._common import write_skipped
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 
-VERSION = "2"  # 2: compiled SSIM kernel + fused Adam (results change at rounding level)
+VERSION = "3"  # 2: compiled SSIM kernel + fused Adam; 3: fused loss terms + render finish (rounding level)
 
 
 def _lpips(net: str, weight: float):
