@@ -269,45 +269,6 @@ void dispatch_channels(int64_t c, F&& f) {
   }
 }
 
-// Returns (mean SSIM as a float64 scalar, partials [3,H,W*C] float64 or an empty tensor).
-std::vector<torch::Tensor> ssim_forward(const torch::Tensor& x, const torch::Tensor& y,
-                                        const torch::Tensor& window, double c1, double c2, bool need_grad) {
-  check_image(x, "x");
-  check_image(y, "y");
-  TORCH_CHECK(x.sizes() == y.sizes(), "ssim: image shapes differ");
-  const auto g = check_window(window);
-  const int64_t H = x.size(0), W = x.size(1);
-  TORCH_CHECK(x.numel() > 0, "ssim: empty image");
-  auto dopt = torch::TensorOptions().dtype(torch::kFloat64);
-  torch::Tensor abc = need_grad ? torch::empty({3, H, W * x.size(2)}, dopt) : torch::empty({0}, dopt);
-  const float* xp = x.data_ptr<float>();
-  const float* yp = y.data_ptr<float>();
-  double total = 0.0;
-  dispatch_channels(x.size(2), [&](auto cc) {
-    constexpr int C = decltype(cc)::value;
-    total = need_grad ? forward_impl<C, true>(xp, yp, abc.data_ptr<double>(), H, W, g, c1, c2)
-                      : forward_impl<C, false>(xp, yp, nullptr, H, W, g, c1, c2);
-  });
-  return {torch::scalar_tensor(total / double(x.numel()), dopt), abc};
-}
-
-// Gradient [H,W,C] float32 of scale * sum(SSIM map) w.r.t. x, from the saved partials.
-torch::Tensor ssim_backward(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& abc,
-                            const torch::Tensor& window, double scale) {
-  check_image(x, "x");
-  check_image(y, "y");
-  const auto g = check_window(window);
-  TORCH_CHECK(y.sizes() == x.sizes() && abc.scalar_type() == torch::kFloat64 && abc.is_contiguous() &&
-                  abc.numel() == 3 * x.numel(),
-              "ssim: partials must be contiguous float64 [3,H,W*C]");
-  torch::Tensor grad = torch::empty(x.sizes(), torch::TensorOptions().dtype(torch::kFloat32));
-  dispatch_channels(x.size(2), [&](auto cc) {
-    backward_impl<decltype(cc)::value>(x.data_ptr<float>(), y.data_ptr<float>(), abc.data_ptr<double>(),
-                                       grad.data_ptr<float>(), x.size(0), x.size(1), g, scale);
-  });
-  return grad;
-}
-
 void check_alpha_mask(const torch::Tensor& x, const torch::Tensor& alpha, const torch::Tensor& mask) {
   for (const auto* t : {&alpha, &mask})
     TORCH_CHECK(t->dim() == 2 && t->scalar_type() == torch::kFloat32 && t->device().is_cpu() &&
@@ -388,6 +349,21 @@ std::vector<torch::Tensor> terms_backward(const torch::Tensor& x, const torch::T
                                        grad.data_ptr<float>(), x.size(0), x.size(1), g, ssim_scale, ex);
   });
   return {grad, grad_alpha};
+}
+
+// Returns (mean SSIM as a float64 scalar, partials [3,H,W*C] float64 or an empty tensor).
+std::vector<torch::Tensor> ssim_forward(const torch::Tensor& x, const torch::Tensor& y,
+                                        const torch::Tensor& window, double c1, double c2, bool need_grad) {
+  const torch::Tensor none = torch::empty({0}, torch::TensorOptions().dtype(torch::kFloat32));
+  auto t = terms_forward(x, y, window, c1, c2, none, none, 0.0, 1.0, need_grad);
+  return {t[0], t[3]};
+}
+
+// Gradient [H,W,C] float32 of scale * sum(SSIM map) w.r.t. x, from the saved partials.
+torch::Tensor ssim_backward(const torch::Tensor& x, const torch::Tensor& y, const torch::Tensor& abc,
+                            const torch::Tensor& window, double scale) {
+  const torch::Tensor none = torch::empty({0}, torch::TensorOptions().dtype(torch::kFloat32));
+  return terms_backward(x, y, abc, window, scale, 0.0, none, none, 0.0, 1.0, 0.0)[0];
 }
 
 // Registered once per process even if a second copy of this library is loaded (same ops, same code).
