@@ -130,9 +130,11 @@ def measure(case: str, backend: str, repeats: int) -> dict:
         if backend == "cpu":  # the compiled binning drops the rectangle tiles a Gaussian cannot reach
             from go_core.render.build import load_extension
 
-            feats = torch.cat([proj.colors, proj.depths[..., None]], -1)
-            inputs = [t.float().contiguous() for t in (proj.means2d, proj.conics, feats, proj.opacities)]
-            binned = load_extension().bin_and_pack(*inputs, proj.depths.float(), proj.radii.int(), size, size)
+            inputs = [
+                t.float().contiguous()
+                for t in (proj.means2d, proj.conics, proj.colors, proj.depths, proj.opacities, proj.depths)
+            ]
+            binned = load_extension().bin_and_pack(*inputs, proj.radii.int(), size, size)
             extra["pairs_binned"] = int(binned[2].numel())
     f = statistics.median(fwd)
     return {

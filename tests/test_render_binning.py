@@ -76,7 +76,15 @@ def _reachable_pairs(d: dict[str, torch.Tensor]) -> set[tuple[int, int]]:
 def test_binning_keeps_every_reachable_tile_and_drops_the_rest(cpu_ext, seed):
     d = _hard_2d_gaussians(600, seed)
     _, toff, gid, goff, gpos = cpu_ext.bin_and_pack(
-        d["means2d"], d["conics"], d["feats"], d["opacities"], d["depths"], d["radii"], W, H
+        d["means2d"],
+        d["conics"],
+        d["feats"][..., :3].contiguous(),
+        d["feats"][..., 3].contiguous(),
+        d["opacities"],
+        d["depths"],
+        d["radii"],
+        W,
+        H,
     )
     toff, gid, goff, gpos = toff.numpy(), gid.numpy(), goff.numpy(), gpos.numpy()
     tx, ty = tile_grid(W, H)

@@ -103,14 +103,19 @@ def render(
                 raise ValueError(f"backend='cpu' needs CPU tensors, got {means.device}")
             from go_core.render.cpu import project_cpu as project
         proj = project(*args, **options)
-        feats = torch.cat([proj.colors, proj.depths[..., None]], dim=-1)  # depth as a 4th channel
         if kind == "reference":
-            from go_core.render.reference import rasterize_reference as rasterize
+            from go_core.render.reference import rasterize_reference
+
+            feats = torch.cat([proj.colors, proj.depths[..., None]], dim=-1)  # depth as a 4th channel
+            acc, alpha = rasterize_reference(
+                proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
+            )
         else:
-            from go_core.render.cpu import rasterize_cpu as rasterize
-        acc, alpha = rasterize(
-            proj.means2d, proj.conics, feats, proj.opacities, proj.depths, proj.radii, width, height
-        )
+            from go_core.render.cpu import rasterize_cpu_with_depth
+
+            acc, alpha = rasterize_cpu_with_depth(
+                proj.means2d, proj.conics, proj.colors, proj.opacities, proj.depths, proj.radii, width, height
+            )
         if kind == "cpu" and not (background is not None and background.requires_grad):
             from go_core.render.cpu import finish_cpu
 

@@ -80,10 +80,10 @@ def project_cpu(
 
 class _RasterizeCPU(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, feats, opacities, depths, radii, width, height):
+    def forward(ctx, means2d, conics, colors, feat4, opacities, depths, radii, width, height):
         ext = load_extension()
         C, N = means2d.shape[:2]
-        f32 = [_f32(t) for t in (means2d, conics, feats, opacities, depths)]
+        f32 = [_f32(t) for t in (means2d, conics, colors, feat4, opacities, depths)]
         rad = radii.detach().to(torch.int32).contiguous()
         params, toff, gid, goff, gpos = ext.bin_and_pack(*f32, rad, width, height)
         out, alpha, tfinal, stop = ext.rasterize_forward(params, toff, gid, C, N, width, height)
@@ -100,10 +100,16 @@ class _RasterizeCPU(torch.autograd.Function):
             grad_out = torch.zeros(C, height, width, 4)
         if grad_alpha is None:
             grad_alpha = torch.zeros(C, height, width, 1)
-        g_m, g_c, g_f, g_o = ext.rasterize_backward(
+        grads = ext.rasterize_backward(
             params, toff, gid, goff, gpos, tfinal, stop, _f32(grad_out), _f32(grad_alpha), C, N, width, height
         )
-        return g_m.to(dtype), g_c.to(dtype), g_f.to(dtype), g_o.to(dtype), None, None, None, None
+        g_m, g_c, g_col, g_f4, g_o = (g.to(dtype) for g in grads)
+        return g_m, g_c, g_col, g_f4, g_o, None, None, None, None
+
+
+def _check_cpu(means2d: torch.Tensor) -> None:
+    if means2d.device.type != "cpu":
+        raise ValueError(f"backend='cpu' needs CPU tensors, got {means2d.device}")
 
 
 def rasterize_cpu(
@@ -119,9 +125,28 @@ def rasterize_cpu(
     """Composite C cameras: [C,N,...] inputs (feats [C,N,4]) → (feats [C,H,W,4], alpha [C,H,W,1])."""
     if feats.shape[-1] != 4:
         raise ValueError(f"the CPU rasterizer composites 4 channels (RGB + depth), got {feats.shape[-1]}")
-    if means2d.device.type != "cpu":
-        raise ValueError(f"backend='cpu' needs CPU tensors, got {means2d.device}")
-    return _RasterizeCPU.apply(means2d, conics, feats, opacities, depths, radii, int(width), int(height))
+    _check_cpu(means2d)
+    return _RasterizeCPU.apply(
+        means2d, conics, feats[..., :3], feats[..., 3], opacities, depths, radii, int(width), int(height)
+    )
+
+
+def rasterize_cpu_with_depth(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    colors: torch.Tensor,
+    opacities: torch.Tensor,
+    depths: torch.Tensor,
+    radii: torch.Tensor,
+    width: int,
+    height: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``rasterize_cpu`` with feats = [colors, depths] (the render's case), without building the [C,N,4]
+    tensor: colours [C,N,3] and depths [C,N] go to the kernel as they are and get their gradients apart."""
+    _check_cpu(means2d)
+    return _RasterizeCPU.apply(
+        means2d, conics, colors, depths, opacities, depths, radii, int(width), int(height)
+    )
 
 
 class _FinishCPU(torch.autograd.Function):

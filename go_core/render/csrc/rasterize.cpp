@@ -195,18 +195,20 @@ static void parallel_dynamic(int64_t n, F&& f) {
 
 }  // namespace
 
-// Binning. Returns (params [C*N,12], tile_offsets [C*T+1] i64, isect_gid [M] i32 (camera-local ids),
+// Binning. The four composited features come as colours [C,N,3] and a fourth channel [C,N] (the render's
+// depths: no concatenation, and separate gradients in the backward). Returns (params [C*N,12], tile_offsets [C*T+1] i64, isect_gid [M] i32 (camera-local ids),
 // gauss_offsets [C*N+1] i64, gauss_isects [M] i64 (positions of each Gaussian's intersections)).
-std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor conics, torch::Tensor feats,
-                                        torch::Tensor opacities, torch::Tensor depths, torch::Tensor radii,
-                                        int64_t width, int64_t height) {
+std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
+                                        torch::Tensor feat4, torch::Tensor opacities, torch::Tensor depths,
+                                        torch::Tensor radii, int64_t width, int64_t height) {
   const int64_t C = means2d.size(0), N = means2d.size(1);
   const int tiles_x = static_cast<int>((width + TILE - 1) / TILE);
   const int tiles_y = static_cast<int>((height + TILE - 1) / TILE);
   const int64_t T = int64_t(tiles_x) * tiles_y;
   const float* m2 = means2d.data_ptr<float>();
   const float* con = conics.data_ptr<float>();
-  const float* ft = feats.data_ptr<float>();
+  const float* col = colors.data_ptr<float>();  // [C,N,3]: the first three composited features
+  const float* f4 = feat4.data_ptr<float>();     // [C,N]: the fourth (the render passes the depths)
   const float* op = opacities.data_ptr<float>();
   const float* dp = depths.data_ptr<float>();
   const int32_t* rad = radii.data_ptr<int32_t>();
@@ -228,7 +230,8 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
       g[3] = con[3 * i + 1];
       g[4] = con[3 * i + 2];
       g[5] = op[i];
-      for (int k = 0; k < 4; ++k) g[6 + k] = ft[4 * i + k];
+      for (int k = 0; k < 3; ++k) g[6 + k] = col[3 * i + k];
+      g[9] = f4[i];
       const double det = double(g[2]) * g[4] - double(g[3]) * g[3];
       // log(255 o): sigma above it gives alpha < 1/255; negative flags Gaussians that never reach 1/255
       g[10] = g[5] >= ALPHA_MIN ? std::max(0.0f, std::log(g[5] * 255.0f)) : -1.0f;
@@ -455,7 +458,8 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
   return {out, alpha, tfinal, stop};
 }
 
-// Backward. Returns (grad_means2d [C,N,2], grad_conics [C,N,3], grad_feats [C,N,4], grad_opacities [C,N]).
+// Backward. Returns (grad_means2d [C,N,2], grad_conics [C,N,3], grad_colors [C,N,3], grad_feat4 [C,N],
+// grad_opacities [C,N]).
 std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tensor tile_offsets,
                                               torch::Tensor isect_gid, torch::Tensor gauss_offsets,
                                               torch::Tensor gauss_isects, torch::Tensor tfinal,
@@ -567,9 +571,11 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
   // every Gaussian is written by the reduction below
   torch::Tensor g_m = torch::empty({C, N, 2}, fopt);
   torch::Tensor g_c = torch::empty({C, N, 3}, fopt);
-  torch::Tensor g_f = torch::empty({C, N, 4}, fopt);
+  torch::Tensor g_col = torch::empty({C, N, 3}, fopt);
+  torch::Tensor g_f4 = torch::empty({C, N}, fopt);
   torch::Tensor g_o = torch::empty({C, N}, fopt);
-  float *pm = g_m.data_ptr<float>(), *pc = g_c.data_ptr<float>(), *pf = g_f.data_ptr<float>();
+  float *pm = g_m.data_ptr<float>(), *pc = g_c.data_ptr<float>(), *pf = g_col.data_ptr<float>();
+  float* pf4 = g_f4.data_ptr<float>();
   float* po = g_o.data_ptr<float>();
   const int64_t* goff = gauss_offsets.data_ptr<int64_t>();
   const int64_t* gpos = gauss_isects.data_ptr<int64_t>();
@@ -587,10 +593,11 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
       pc[3 * n + 1] = acc[3];
       pc[3 * n + 2] = acc[4];
       po[n] = acc[5];
-      for (int q = 0; q < 4; ++q) pf[4 * n + q] = acc[6 + q];
+      for (int q = 0; q < 3; ++q) pf[3 * n + q] = acc[6 + q];
+      pf4[n] = acc[9];
     }
   });
-  return {g_m, g_c, g_f, g_o};
+  return {g_m, g_c, g_col, g_f4, g_o};
 }
 
 // Splits the composited features into the render's outputs: rgb over a background (rgb + (1 - alpha) bg;
