@@ -42,6 +42,23 @@ def _adam(groups: list[dict]) -> torch.optim.Adam:
     return torch.optim.Adam(groups, eps=1e-15, fused=True)
 
 
+def _compiled_adam_applies(group: dict) -> bool:
+    """One float32 CPU parameter, plain Adam (no weight decay, amsgrad, maximize), as ``_adam`` builds it."""
+    p = group["params"][0]
+    return (
+        len(group["params"]) == 1
+        and p.dtype == torch.float32
+        and p.device.type == "cpu"
+        and p.is_contiguous()
+        and p.grad.dtype == torch.float32
+        and not p.grad.is_sparse
+        and group["weight_decay"] == 0
+        and not group["amsgrad"]
+        and not group["maximize"]
+        and not isinstance(group["lr"], torch.Tensor)
+    )
+
+
 class GaussianOptimizer:
     """Trainable Gaussian tensors (``sh`` split into DC ``sh0`` and rest ``shN`` for their learning rates)."""
 
@@ -92,8 +109,45 @@ class GaussianOptimizer:
         return lr
 
     def step(self) -> None:
-        self.optimizer.step()
+        """One Adam step of every parameter with a gradient, then clear the gradients."""
+        if not self._compiled_step():
+            self.optimizer.step()
         self.optimizer.zero_grad(set_to_none=True)
+
+    def _compiled_step(self) -> bool:
+        """The same update as ``self.optimizer.step()`` for float32 CPU parameters, by the compiled kernel in
+        one parallel region for all six tensors (torch's fused Adam runs one per group); the state (moments,
+        step counts) lives in ``self.optimizer.state`` as torch keeps it, so checkpoints and the row
+        operations are unchanged. Returns False (nothing done) where it does not apply."""
+        groups = [g for g in self.optimizer.param_groups if g["params"][0].grad is not None]
+        if not groups or not all(_compiled_adam_applies(g) for g in groups):
+            return False
+        if len({(tuple(g["betas"]), g["eps"]) for g in groups}) != 1:
+            return False
+        try:
+            from go_core.render.build import load_extension
+
+            ext = load_extension()
+        except Exception:  # no compiler: torch's fused Adam does the same
+            return False
+        params, grads, avgs, sqs, lrs, steps = [], [], [], [], [], []
+        for group in groups:
+            p = group["params"][0]
+            state = self.optimizer.state[p]
+            if not state:  # as torch.optim.Adam initialises it (fused: float32 step tensor)
+                state["step"] = torch.zeros((), dtype=torch.float32)
+                state["exp_avg"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+                state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.preserve_format)
+            state["step"] += 1
+            params.append(p.data)
+            grads.append(p.grad.contiguous())
+            avgs.append(state["exp_avg"])
+            sqs.append(state["exp_avg_sq"])
+            lrs.append(float(group["lr"]))
+            steps.append(float(state["step"]))
+        (beta1, beta2), eps = groups[0]["betas"], groups[0]["eps"]
+        ext.adam_step(params, grads, avgs, sqs, lrs, steps, float(beta1), float(beta2), float(eps))
+        return True
 
     # Row operations ---------------------------------------------------------------------------------------
     def _replace(self, name: str, new: torch.Tensor, state_fn) -> None:

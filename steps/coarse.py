@@ -22,7 +22,7 @@ from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
 from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
 
-VERSION = "3"  # 2: compiled SSIM kernel + fused Adam; 3: fused loss terms + render finish (rounding level)
+VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:

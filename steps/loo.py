@@ -28,7 +28,7 @@ from go_core.io.atomic import atomic_write_json
 from go_core.repair.loo import LooSettings, load_run, run_job, run_one
 from go_core.repair.noise import difference_stats
 
-VERSION = "3"  # 2: compiled SSIM kernel + fused Adam; 3: fused loss terms + render finish (rounding level)
+VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
 
 
 def settings_from(params: dict, sh_degree: int, coarse_config: dict | None = None) -> LooSettings:

@@ -28,7 +28,7 @@ from go_pipeline.steps._common import write_skipped
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 
-VERSION = "3"  # 2: compiled SSIM kernel + fused Adam; 3: fused loss terms + render finish (rounding level)
+VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
 
 
 def _lpips(net: str, weight: float):

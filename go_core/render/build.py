@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = ("rasterize.cpp", "project.cpp", "ssim.cpp")
+SOURCES = ("rasterize.cpp", "project.cpp", "ssim.cpp", "adam.cpp")
 CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 

@@ -673,6 +673,11 @@ std::vector<torch::Tensor> project_backward(torch::Tensor means, torch::Tensor q
                                             torch::Tensor g_opac, torch::Tensor g_depths,
                                             bool pose_grad);
 
+// adam.cpp
+void adam_step(std::vector<torch::Tensor> params, std::vector<torch::Tensor> grads,
+               std::vector<torch::Tensor> exp_avgs, std::vector<torch::Tensor> exp_avg_sqs,
+               std::vector<double> lrs, std::vector<double> steps, double beta1, double beta2, double eps);
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "go-pipeline CPU Gaussian rasterizer";
   m.def("bin_and_pack", &bin_and_pack, "tile binning and parameter packing");
@@ -682,4 +687,5 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("finish_backward", &finish_backward, "backward of finish_forward");
   m.def("project_forward", &project_forward, "EWA projection and SH colours");
   m.def("project_backward", &project_backward, "backward of the projection");
+  m.def("adam_step", &adam_step, "one Adam step over several tensors in one parallel region");
 }
