@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
             row = {
                 "busy_processes": busy,
                 "setting": name,
-                "environment": {k: v for k, v in SETTINGS[name].items()},
+                "environment": dict(SETTINGS[name]),
                 "ms_per_iteration_median": round(statistics.median(times), 2),
                 "ms_per_iteration_runs": times,
                 "cores_used": round(statistics.median(r["cores_used"] for r in results), 2),

@@ -173,23 +173,18 @@ class _TermsKernel(torch.autograd.Function):
 
 
 def _terms_kernel_applies(pred, target, alpha, mask) -> bool:
-    """Whether ``photometric_terms`` runs the compiled kernel: float32 CPU [H,W,3] images (constant target),
-    float32 CPU alpha/mask of H·W elements (constant mask)."""
-    grad = torch.is_grad_enabled()
-    ok = (
-        pred.dim() == 3
-        and pred.shape[-1] == 3
-        and pred.numel() > 0
-        and pred.shape == target.shape
-        and all(t.device.type == "cpu" and t.dtype == torch.float32 for t in (pred, target))
-        and not (target.requires_grad and grad)
+    """Whether ``photometric_terms`` runs the compiled kernel: an [H,W,3] pair that ``ssim``'s kernel takes,
+    and float32 CPU alpha/mask of H·W elements (constant mask)."""
+    if not (pred.dim() == 3 and pred.shape[-1] == 3 and pred.shape == target.shape):
+        return False
+    if not _kernel_applies(_as_bchw(pred), _as_bchw(target)):
+        return False
+    if alpha is None:
+        return True
+    hw = pred.shape[0] * pred.shape[1]
+    return not (mask.requires_grad and torch.is_grad_enabled()) and all(
+        t.device.type == "cpu" and t.dtype == torch.float32 and t.numel() == hw for t in (alpha, mask)
     )
-    if ok and alpha is not None:
-        hw = pred.shape[0] * pred.shape[1]
-        ok = not (mask.requires_grad and grad) and all(
-            t.device.type == "cpu" and t.dtype == torch.float32 and t.numel() == hw for t in (alpha, mask)
-        )
-    return ok
 
 
 def photometric_terms(
