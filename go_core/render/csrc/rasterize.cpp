@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <memory>
 #include <vector>
 
 namespace {
@@ -196,12 +197,20 @@ static void parallel_dynamic(int64_t n, F&& f) {
 }  // namespace
 
 // Binning. The four composited features come as colours [C,N,3] and a fourth channel [C,N] (the render's
-// depths: no concatenation, and separate gradients in the backward). Returns (params [C*N,12], tile_offsets [C*T+1] i64, isect_gid [M] i32 (camera-local ids),
-// gauss_offsets [C*N+1] i64, gauss_isects [M] i64 (positions of each Gaussian's intersections)).
+// depths: no concatenation, and separate gradients in the backward). Returns (params [C*N,16],
+// tile_offsets [C*T+1] i64, isect_gid [M] i32 (camera-local ids), gauss_offsets [C*N+1] i64,
+// gauss_isects [M] i64 (positions of each Gaussian's intersections, in row-major tile order)).
+//
+// Four parallel passes. (1) Over Gaussians in index order: pack the parameters, find the tile rectangle and
+// the tiles within it that the Gaussian can reach. (2) Per camera: sort the binned Gaussians by depth.
+// (3) Over chunks of that depth order: count the tiles each chunk touches and list them in the chunk's own
+// buffer. (4) The same chunks scatter their Gaussians into the tiles, each from its own cursors (prefix sums
+// of the counts in chunk order), so every tile lists its Gaussians in depth order whatever the thread count.
+// Passes 3 and 4 read each Gaussian's data once, not once per tile row band: depth order is random in memory.
 std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor conics, torch::Tensor colors,
                                         torch::Tensor feat4, torch::Tensor opacities, torch::Tensor depths,
                                         torch::Tensor radii, int64_t width, int64_t height) {
-  const int64_t C = means2d.size(0), N = means2d.size(1);
+  const int64_t C = means2d.size(0), N = means2d.size(1), CN = C * N;
   const int tiles_x = static_cast<int>((width + TILE - 1) / TILE);
   const int tiles_y = static_cast<int>((height + TILE - 1) / TILE);
   const int64_t T = int64_t(tiles_x) * tiles_y;
@@ -212,16 +221,33 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
   const float* op = opacities.data_ptr<float>();
   const float* dp = depths.data_ptr<float>();
   const int32_t* rad = radii.data_ptr<int32_t>();
+  const int threads = std::max(1, at::get_num_threads());
 
   auto fopt = torch::TensorOptions().dtype(torch::kFloat32);
   auto lopt = torch::TensorOptions().dtype(torch::kInt64);
-  torch::Tensor params = torch::empty({C * N, NP}, fopt);
+  torch::Tensor params = torch::empty({CN, NP}, fopt);
   float* P = params.data_ptr<float>();
-  std::vector<Rect> rects(C * N);
-  torch::Tensor goff_t = torch::empty({C * N + 1}, lopt);
+  torch::Tensor goff_t = torch::empty({CN + 1}, lopt);
   int64_t* goff = goff_t.data_ptr<int64_t>();
 
-  at::parallel_for(0, C * N, 4096, [&](int64_t b, int64_t e) {
+  // (1) The 3-sigma rectangle is only a candidate set: about half of its tiles are typically out of reach
+  // (its corners, the ellipse's thin side, low opacity). In every tile row keep only the tiles that
+  // StripSpans' x-range overlaps. Dropping the others changes no result (the compositing would skip every
+  // pixel row of such a pair) and saves their cost in the forward, the backward and the gradient reduction.
+  // Each chunk of Gaussians keeps its rows' tile ranges in its own buffer (no prefix sum needed first).
+  struct Span {
+    int32_t x0, x1;  // kept tiles of one rectangle row
+  };
+  struct Binned {
+    Rect rect;
+    const Span* rows;  // rect.y1 - rect.y0 entries
+  };
+  std::unique_ptr<Binned[]> bins(new Binned[std::max<int64_t>(CN, 1)]);
+  const int64_t pack_chunks = std::max<int64_t>(1, std::min<int64_t>(4 * threads, CN / 512));
+  std::vector<std::vector<Span>> span_bufs(pack_chunks);
+  parallel_dynamic(pack_chunks, [&](int64_t k) {
+    const int64_t b = CN * k / pack_chunks, e = CN * (k + 1) / pack_chunks;
+    int64_t rows_total = 0;
     for (int64_t i = b; i < e; ++i) {
       float* g = P + i * NP;
       g[0] = m2[2 * i];
@@ -230,7 +256,7 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
       g[3] = con[3 * i + 1];
       g[4] = con[3 * i + 2];
       g[5] = op[i];
-      for (int k = 0; k < 3; ++k) g[6 + k] = col[3 * i + k];
+      for (int q = 0; q < 3; ++q) g[6 + q] = col[3 * i + q];
       g[9] = f4[i];
       const double det = double(g[2]) * g[4] - double(g[3]) * g[3];
       // log(255 o): sigma above it gives alpha < 1/255; negative flags Gaussians that never reach 1/255
@@ -242,119 +268,119 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
       g[14] = g[15] = 0.0f;
       Rect r{0, 0, 0, 0};
       if (rad[i] > 0 && g[10] >= 0.0f) r = tile_rect(g[0], g[1], rad[i], tiles_x, tiles_y);
-      rects[i] = r;
+      if (r.x1 <= r.x0 || r.y1 <= r.y0) r = Rect{0, 0, 0, 0};
+      bins[i].rect = r;
+      rows_total += r.y1 - r.y0;
     }
-  });
-  // The 3-sigma rectangle is only a candidate set: about half of its tiles are typically out of reach (its
-  // corners, the ellipse's thin side, low opacity). In every tile row keep only the tiles that StripSpans'
-  // x-range overlaps. Dropping the others changes no result (the compositing would skip every pixel row of
-  // such a pair) and saves their cost in the forward, the backward and the gradient reduction.
-  // spans[soff[i] + y - y0] = (first tile, end tile, rank of the first tile among the Gaussian's kept tiles
-  // in row-major order).
-  struct Span {
-    int32_t x0, x1, rank;
-  };
-  std::vector<int64_t> soff(C * N + 1);
-  soff[0] = 0;
-  for (int64_t i = 0; i < C * N; ++i) soff[i + 1] = soff[i] + std::max(0, rects[i].y1 - rects[i].y0);
-  std::vector<Span> spans(soff[C * N]);
-  at::parallel_for(0, C * N, 1024, [&](int64_t b, int64_t e) {
+    std::vector<Span>& buf = span_bufs[k];
+    buf.resize(rows_total);
+    Span* sp = buf.data();
     for (int64_t i = b; i < e; ++i) {
-      const Rect& r = rects[i];
-      const float* g = P + i * NP;
-      Span* sp = spans.data() + soff[i];
-      int32_t kept = 0;
-      if (r.y1 <= r.y0 || r.x1 <= r.x0) {
-        goff[i + 1] = 0;
-        continue;
-      }
-      const StripSpans strips(g);
-      for (int y = r.y0; y < r.y1; ++y, ++sp) {
-        float span_lo, span_hi;
-        strips.range(float(y * TILE), span_lo, span_hi);
-        // tile x is touched by some row iff span_hi >= 16x + 0.5 and span_lo <= 16x + 15.5
-        const float fx0 = std::ceil((span_lo - (TILE - 0.5f)) / TILE);
-        const float fx1 = std::floor((span_hi - 0.5f) / TILE) + 1.0f;
-        // clamped to the rectangle; a NaN bound keeps the whole rectangle row (NaN comparisons are false)
-        const int x0 = fx0 > float(r.x0) ? static_cast<int>(std::min(fx0, float(r.x1))) : r.x0;
-        const int x1 = fx1 < float(r.x1) ? static_cast<int>(std::max(fx1, float(x0))) : r.x1;
-        *sp = {x0, x1, kept};
-        kept += x1 - x0;
+      const Rect& r = bins[i].rect;
+      bins[i].rows = sp;
+      int64_t kept = 0;
+      if (r.y1 > r.y0) {
+        const StripSpans strips(P + i * NP);
+        for (int y = r.y0; y < r.y1; ++y, ++sp) {
+          float span_lo, span_hi;
+          strips.range(float(y * TILE), span_lo, span_hi);
+          // tile x is touched by some row iff span_hi >= 16x + 0.5 and span_lo <= 16x + 15.5
+          const float fx0 = std::ceil((span_lo - (TILE - 0.5f)) / TILE);
+          const float fx1 = std::floor((span_hi - 0.5f) / TILE) + 1.0f;
+          // clamped to the rectangle; a NaN bound keeps the whole rectangle row (NaN comparisons are false)
+          const int x0 = fx0 > float(r.x0) ? static_cast<int>(std::min(fx0, float(r.x1))) : r.x0;
+          const int x1 = fx1 < float(r.x1) ? static_cast<int>(std::max(fx1, float(x0))) : r.x1;
+          *sp = {x0, x1};
+          kept += x1 - x0;
+        }
       }
       goff[i + 1] = kept;
     }
   });
   goff[0] = 0;
-  for (int64_t i = 0; i < C * N; ++i) goff[i + 1] += goff[i];
-  const int64_t M = goff[C * N];
+  for (int64_t i = 0; i < CN; ++i) goff[i + 1] += goff[i];
+  const int64_t M = goff[CN];
 
-  // Depth order of the binned Gaussians of every camera.
+  // (2) Depth order of the binned Gaussians of every camera.
   std::vector<std::vector<int32_t>> order(C);
   parallel_dynamic(C, [&](int64_t c) {
     auto& ids = order[c];
+    ids.reserve(N);
     for (int64_t n = 0; n < N; ++n)
       if (goff[c * N + n + 1] > goff[c * N + n]) ids.push_back(static_cast<int32_t>(n));
     sort_by_depth(ids, dp + c * N);
   });
 
-  // Counting sort into tiles, parallel over bands of tile rows; each band scans, in depth order, the
-  // Gaussians whose rectangle reaches it.
-  const int bands_per_cam = std::min(tiles_y, std::max(1, 4 * at::get_num_threads()));
-  const int64_t units = C * bands_per_cam;
-  auto band_rows = [&](int64_t u, int& r0, int& r1) {
-    const int b = static_cast<int>(u % bands_per_cam);
-    r0 = static_cast<int>(int64_t(tiles_y) * b / bands_per_cam);
-    r1 = static_cast<int>(int64_t(tiles_y) * (b + 1) / bands_per_cam);
+  // (3) Chunks of every camera's depth order: tile counts and each chunk's tile list.
+  const int64_t K = threads;  // chunks per camera
+  const int64_t units = C * K;
+  std::vector<int64_t> counts(units * T, 0);  // per unit and tile; becomes the unit's cursors
+  std::vector<std::vector<int32_t>> unit_tiles(units);
+  auto unit_range = [&](int64_t u, int64_t& b, int64_t& e) {
+    const int64_t n = static_cast<int64_t>(order[u / K].size()), k = u % K;
+    b = n * k / K;
+    e = n * (k + 1) / K;
   };
-  std::vector<int> row_band(tiles_y);
-  for (int64_t u = 0; u < bands_per_cam; ++u) {
-    int r0, r1;
-    band_rows(u, r0, r1);
-    for (int y = r0; y < r1; ++y) row_band[y] = static_cast<int>(u);
-  }
-  std::vector<std::vector<int32_t>> band_ids(units);
-  parallel_dynamic(C, [&](int64_t c) {
-    for (int32_t n : order[c]) {
-      const Rect& r = rects[c * N + n];
-      for (int b = row_band[r.y0]; b <= row_band[r.y1 - 1]; ++b)
-        band_ids[c * bands_per_cam + b].push_back(n);
-    }
-  });
-  torch::Tensor toff_t = torch::zeros({C * T + 1}, lopt);
-  int64_t* toff = toff_t.data_ptr<int64_t>();
   parallel_dynamic(units, [&](int64_t u) {
-    const int64_t c = u / bands_per_cam;
-    int r0, r1;
-    band_rows(u, r0, r1);
-    int64_t* cnt = toff + 1 + c * T;
-    for (int32_t n : band_ids[u]) {
-      const Rect& r = rects[c * N + n];
-      const Span* sp = spans.data() + soff[c * N + n];
-      for (int y = std::max(r.y0, r0); y < std::min(r.y1, r1); ++y)
-        for (int x = sp[y - r.y0].x0; x < sp[y - r.y0].x1; ++x) cnt[int64_t(y) * tiles_x + x]++;
+    const int64_t c = u / K;
+    int64_t b, e;
+    unit_range(u, b, e);
+    int64_t* cnt = counts.data() + u * T;
+    std::vector<int32_t>& tl = unit_tiles[u];
+    tl.reserve((goff[c * N + N] - goff[c * N]) * 5 / (4 * K) + 64);  // the camera's share, grows if needed
+    const int32_t* ord = order[c].data();
+    for (int64_t k = b; k < e; ++k) {
+      // depth order is random in memory: fetch the records 16 and the row ranges 8 Gaussians ahead
+      if (k + 16 < e) __builtin_prefetch(&bins[c * N + ord[k + 16]]);
+      if (k + 8 < e) __builtin_prefetch(bins[c * N + ord[k + 8]].rows);
+      const Binned& bn = bins[c * N + ord[k]];
+      for (int y = bn.rect.y0; y < bn.rect.y1; ++y) {
+        const Span& s = bn.rows[y - bn.rect.y0];
+        for (int x = s.x0; x < s.x1; ++x) {
+          const int32_t t = y * tiles_x + x;
+          cnt[t]++;
+          tl.push_back(t);
+        }
+      }
     }
   });
-  for (int64_t t = 0; t < C * T; ++t) toff[t + 1] += toff[t];
+  torch::Tensor toff_t = torch::empty({C * T + 1}, lopt);
+  int64_t* toff = toff_t.data_ptr<int64_t>();
+  toff[0] = 0;
+  for (int64_t c = 0; c < C; ++c)
+    for (int64_t t = 0; t < T; ++t) {
+      int64_t pos = toff[c * T + t];
+      for (int64_t k = 0; k < K; ++k) {
+        int64_t& cnt = counts[(c * K + k) * T + t];
+        const int64_t n = cnt;
+        cnt = pos;  // the unit's first slot in this tile
+        pos += n;
+      }
+      toff[c * T + t + 1] = pos;
+    }
 
+  // (4) Scatter, in depth order within every chunk.
   torch::Tensor gid_t = torch::empty({M}, torch::TensorOptions().dtype(torch::kInt32));
   torch::Tensor gpos_t = torch::empty({M}, lopt);
   int32_t* gid = gid_t.data_ptr<int32_t>();
   int64_t* gpos = gpos_t.data_ptr<int64_t>();
   parallel_dynamic(units, [&](int64_t u) {
-    const int64_t c = u / bands_per_cam;
-    int r0, r1;
-    band_rows(u, r0, r1);
-    std::vector<int64_t> cursor(toff + c * T + int64_t(r0) * tiles_x, toff + c * T + int64_t(r1) * tiles_x);
-    for (int32_t n : band_ids[u]) {
-      const Rect& r = rects[c * N + n];
-      int64_t* gp = gpos + goff[c * N + n];
-      const Span* sp = spans.data() + soff[c * N + n];
-      for (int y = std::max(r.y0, r0); y < std::min(r.y1, r1); ++y)
-        for (int x = sp[y - r.y0].x0; x < sp[y - r.y0].x1; ++x) {
-          const int64_t pos = cursor[int64_t(y - r0) * tiles_x + x]++;
-          gid[pos] = n;
-          gp[sp[y - r.y0].rank + (x - sp[y - r.y0].x0)] = pos;
-        }
+    const int64_t c = u / K;
+    int64_t b, e;
+    unit_range(u, b, e);
+    int64_t* cursor = counts.data() + u * T;
+    const int32_t* tl = unit_tiles[u].data();
+    const int32_t* ord = order[c].data();
+    for (int64_t k = b; k < e; ++k) {
+      if (k + 16 < e) __builtin_prefetch(&goff[c * N + ord[k + 16]]);
+      if (k + 8 < e) __builtin_prefetch(&gpos[goff[c * N + ord[k + 8]]], 1);
+      const int32_t n = ord[k];
+      const int64_t g0 = goff[c * N + n], g1 = goff[c * N + n + 1];
+      for (int64_t j = g0; j < g1; ++j) {
+        const int64_t pos = cursor[*tl++]++;
+        gid[pos] = n;
+        gpos[j] = pos;
+      }
     }
   });
   return {params, toff_t, gid_t, goff_t, gpos_t};
