@@ -199,8 +199,9 @@ def photometric_terms(
 
     ``pred``/``target`` are [H,W,3] (the renderer's layout), ``alpha`` any shape of H·W elements (e.g. the
     renderer's [H,W] or [1,H,W,1]), ``mask`` [H,W]. A float32 CPU view runs all three in one compiled pass
-    forward and one backward (go_core/render/csrc/ssim.cpp: SSIM and L1 in float64 sums, BCE per pixel in
-    float64), instead of ~30 small torch ops; anything else runs the three torch functions.
+    forward and one backward (go_core/render/csrc/ssim.cpp: SSIM and L1 in float64 sums, the BCE value with
+    float32 vector logs, as torch's float32 mask_bce, summed in float64; its gradient in float64), instead of
+    ~30 small torch ops; anything else runs the three torch functions.
     """
     if (alpha is None) != (mask is None):
         raise ValueError("photometric_terms: give both alpha and mask, or neither")

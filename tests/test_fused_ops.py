@@ -98,3 +98,45 @@ def test_finish_matches_the_torch_compositing(bg_shape, used):
     torch.testing.assert_close(f.grad.double(), f64.grad, rtol=1e-6, atol=1e-7)
     ref_a = a64.grad if a64.grad is not None else torch.zeros_like(a64)  # alpha unused: zeros, not None
     torch.testing.assert_close(a.grad.double(), ref_a, rtol=1e-5, atol=1e-6)
+
+
+def _bce64(alpha: torch.Tensor, mask: torch.Tensor, lo: float, hi: float) -> float:
+    a = alpha.double().clamp(lo, hi)
+    m = mask.double()
+    return float(-(m * a.log() + (1.0 - m) * torch.log1p(-a)).mean())
+
+
+@pytest.mark.parametrize("w", [16, 37])
+def test_bce_value_is_float_accurate_where_naive_float32_is_not(w):
+    """The BCE value on alphas whose log(1 - a) a plain float32 log gets wrong by up to ~6% (a ~ 1e-6: 1 - a
+    rounds), near 1 and at both clamp bounds, a row width that is not a multiple of the 16-lane vectors:
+    float64 reference to 2e-6 relative (a float32 log(1 - a) is off by more than 1e-5 here)."""
+    g = torch.Generator().manual_seed(3)
+    h = 9
+    pred, target = torch.rand(h, w, 3, generator=g), torch.rand(h, w, 3, generator=g)
+    alpha = 10 ** (-6.0 + 2.0 * torch.rand(h, w, generator=g))  # 1e-6 .. 1e-4
+    mask = torch.zeros(h, w)
+    alpha[0] = 1.0 - alpha[0]  # near 1, under a mask of 1
+    mask[0] = 1.0
+    alpha[1, :5] = 0.0  # clamped to eps
+    alpha[1, 5:10] = 1.0  # clamped to 1 - eps, under a mask of 1
+    mask[1, 5:10] = 1.0
+    _, _, b = photometric_terms(pred, target, alpha, mask)
+    lo = float(torch.tensor(1e-6, dtype=torch.float32))
+    hi = float(torch.tensor(1.0 - 1e-6, dtype=torch.float32))
+    ref = _bce64(alpha, mask, lo, hi)
+    assert float(b) == pytest.approx(ref, rel=2e-6)
+    naive = float(-(mask * alpha.clamp(lo, hi).log() + (1 - mask) * (1 - alpha.clamp(lo, hi)).log()).mean())
+    assert abs(naive - ref) > 1e-5 * abs(ref)  # the case is hard: a float32 log(1 - a) fails it
+
+
+def test_bce_value_propagates_nan_and_reaches_inf_without_clamp():
+    pred, target, alpha, mask = _images(h=5, w=20)
+    alpha = alpha.clamp(0.01, 0.99)
+    alpha[2, 17] = float("nan")
+    _, _, b = photometric_terms(pred, target, alpha, mask)
+    assert torch.isnan(b)
+    alpha[2, 17] = 0.0  # log(0) under a mask of 1, no clamp: +inf (torch's lerp form gives NaN)
+    mask[2, 17] = 1.0
+    _, _, b = photometric_terms(pred, target, alpha, mask, eps=0.0)
+    assert torch.isinf(b) and b > 0
