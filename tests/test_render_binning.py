@@ -72,10 +72,8 @@ def _reachable_pairs(d: dict[str, torch.Tensor]) -> set[tuple[int, int]]:
     return pairs
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_binning_keeps_every_reachable_tile_and_drops_the_rest(cpu_ext, seed):
-    d = _hard_2d_gaussians(600, seed)
-    _, toff, gid, goff, gpos = cpu_ext.bin_and_pack(
+def _bin(ext, d: dict[str, torch.Tensor]) -> list[torch.Tensor]:
+    return ext.bin_and_pack(
         d["means2d"],
         d["conics"],
         d["feats"][..., :3].contiguous(),
@@ -86,6 +84,12 @@ def test_binning_keeps_every_reachable_tile_and_drops_the_rest(cpu_ext, seed):
         W,
         H,
     )
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_binning_keeps_every_reachable_tile_and_drops_the_rest(cpu_ext, seed):
+    d = _hard_2d_gaussians(600, seed)
+    _, toff, gid, goff, gpos = _bin(cpu_ext, d)
     toff, gid, goff, gpos = toff.numpy(), gid.numpy(), goff.numpy(), gpos.numpy()
     tx, ty = tile_grid(W, H)
     kept = {(t, int(n)) for t in range(tx * ty) for n in gid[toff[t] : toff[t + 1]]}
@@ -145,20 +149,6 @@ def test_culled_binning_composites_like_the_reference(cpu_ext):
         assert float((cpu - ref).abs().mean()) < 1e-6
     for k in ("means2d", "conics", "feats", "opacities"):
         assert float((gc[k] - gr[k]).abs().max()) <= 5e-4 * float(gr[k].abs().max()), k
-
-
-def _bin(ext, d: dict[str, torch.Tensor]) -> list[torch.Tensor]:
-    return ext.bin_and_pack(
-        d["means2d"],
-        d["conics"],
-        d["feats"][..., :3].contiguous(),
-        d["feats"][..., 3].contiguous(),
-        d["opacities"],
-        d["depths"],
-        d["radii"],
-        W,
-        H,
-    )
 
 
 def test_binning_is_a_stable_depth_sort_independent_of_threads(cpu_ext):
