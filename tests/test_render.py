@@ -290,10 +290,14 @@ def test_build_key_and_missing_compiler(monkeypatch, tmp_path):
     # the same sources in another checkout get their own build dir (ninja files hold absolute paths)
     other = tmp_path / "checkout" / "csrc"
     other.mkdir(parents=True)
-    for name in build.SOURCES:
+    for name in build.SOURCES + build.HEADERS:
         (other / name).write_bytes((build.CSRC / name).read_bytes())
     monkeypatch.setattr(build, "CSRC", other)
-    assert build.build_key() != key
+    other_key = build.build_key()
+    assert other_key != key
+    # a header is part of the binary too
+    (other / build.HEADERS[0]).write_text((other / build.HEADERS[0]).read_text() + "\n// edited\n")
+    assert build.build_key() != other_key
     monkeypatch.undo()
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
     assert build.build_root() == tmp_path

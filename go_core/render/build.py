@@ -22,6 +22,7 @@ from pathlib import Path
 
 CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = ("rasterize.cpp", "project.cpp", "ssim.cpp", "adam.cpp")
+HEADERS = ("simd.h",)
 CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 
@@ -59,7 +60,7 @@ def build_key() -> str:
     # the checkout's path too: torch's ninja build files name the sources by absolute path, so two
     # checkouts sharing one build dir would rebuild it in turn (~100 s inside whichever step loads it first)
     h.update(str(CSRC).encode())
-    for name in SOURCES:
+    for name in SOURCES + HEADERS:
         h.update(name.encode())
         h.update((CSRC / name).read_bytes())
     h.update(" ".join(CFLAGS + LDFLAGS).encode())

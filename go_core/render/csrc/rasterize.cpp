@@ -17,6 +17,8 @@
 #include <memory>
 #include <vector>
 
+#include "simd.h"
+
 namespace {
 
 constexpr int TILE = 16;
@@ -27,10 +29,9 @@ constexpr float T_STOP = 1e-4f;
 constexpr int NP = 16;   // packed floats per Gaussian: mx my a b c o f0..f3 log(255 o) det/a b/a 1/a (pad)
 constexpr int NG = 10;   // gradient floats per (tile, Gaussian): dmx dmy da db dc do df0..df3
 
-// 16-lane vectors (GCC vector extensions: one zmm register with AVX-512, two ymm with AVX2). Written with
-// explicit vectors rather than relying on auto-vectorisation, which silently fell back to scalar code.
-typedef float vf __attribute__((vector_size(64)));
-typedef int32_t vi __attribute__((vector_size(64)));
+using go_simd::vany;
+using go_simd::vf;
+using go_simd::vi;
 typedef float vf8 __attribute__((vector_size(32)));
 typedef float vf4 __attribute__((vector_size(16)));
 static const vf LANE = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
@@ -66,12 +67,6 @@ static inline float hsum(vf v) {
                 __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15);
   const vf4 b = __builtin_shufflevector(a, a, 0, 1, 2, 3) + __builtin_shufflevector(a, a, 4, 5, 6, 7);
   return (b[0] + b[2]) + (b[1] + b[3]);
-}
-
-static inline bool vany(vi m) {
-  int32_t acc = 0;
-  for (int k = 0; k < 16; ++k) acc |= m[k];
-  return acc != 0;
 }
 
 // Order-preserving unsigned key of a float (negative values flip all bits, positive ones the sign bit).

@@ -33,6 +33,8 @@
 #include <type_traits>
 #include <vector>
 
+#include "simd.h"
+
 namespace {
 
 constexpr int R = 5;  // window radius: 11 taps, the 3DGS window (a compile-time constant so loops unroll)
@@ -66,22 +68,22 @@ struct Extras {
   double bce_scale = 0.0;
 };
 
-// 16 float lanes (GCC vector extensions, as the rasterizer: one zmm with AVX-512, two ymm with AVX2).
-typedef float vf16 __attribute__((vector_size(64)));
-typedef int32_t vi16 __attribute__((vector_size(64)));
+using go_simd::vany;
+using go_simd::vf;
+using go_simd::vi;
 
 // log(x) for normal positive floats: Cephes logf (x = m 2^e, m in [sqrt(1/2), sqrt(2)), degree-8
 // polynomial in m - 1; about 1 ulp). Lanes outside the normal range (0, denormals, inf, NaN) go to std::log.
-inline vf16 vlogf(vf16 x) {
-  vi16 bits = (vi16)x;
-  vi16 e = ((bits >> 23) & 0xff) - 126;  // x = m 2^e with m in [0.5, 1)
-  vf16 m = (vf16)((bits & 0x007fffff) | 0x3f000000);
-  const vi16 low = m < 0.70710678118654752440f;
+inline vf vlogf(vf x) {
+  vi bits = (vi)x;
+  vi e = ((bits >> 23) & 0xff) - 126;  // x = m 2^e with m in [0.5, 1)
+  vf m = (vf)((bits & 0x007fffff) | 0x3f000000);
+  const vi low = m < 0.70710678118654752440f;
   e = low ? e - 1 : e;
   m = low ? m + m - 1.0f : m - 1.0f;
-  const vf16 fe = __builtin_convertvector(e, vf16);
-  const vf16 z = m * m;
-  vf16 y = m * 7.0376836292e-2f - 1.1514610310e-1f;
+  const vf fe = __builtin_convertvector(e, vf);
+  const vf z = m * m;
+  vf y = m * 7.0376836292e-2f - 1.1514610310e-1f;
   y = y * m + 1.1676998740e-1f;
   y = y * m - 1.2420140846e-1f;
   y = y * m + 1.4249322787e-1f;
@@ -91,11 +93,9 @@ inline vf16 vlogf(vf16 x) {
   y = y * m + 3.3333331174e-1f;
   y = y * m * z;
   y = y + fe * -2.12194440e-4f - 0.5f * z;
-  vf16 r = (m + y) + fe * 0.693359375f;
-  const vi16 odd = !((x >= 1.17549435e-38f) & (x <= 3.40282347e38f));
-  bool any = false;
-  for (int k = 0; k < 16; ++k) any |= odd[k] != 0;
-  if (any)
+  vf r = (m + y) + fe * 0.693359375f;
+  const vi odd = !((x >= 1.17549435e-38f) & (x <= 3.40282347e38f));
+  if (vany(odd))
     for (int k = 0; k < 16; ++k)
       if (odd[k]) r[k] = std::log(x[k]);
   return r;
@@ -108,17 +108,17 @@ inline double bce_row(const float* alpha, const float* mask, int64_t W, float lo
   double sum = 0.0;
   for (int64_t w0 = 0; w0 < W; w0 += 16) {
     const int n = static_cast<int>(std::min<int64_t>(16, W - w0));
-    vf16 raw, m;
+    vf raw, m;
     for (int k = 0; k < 16; ++k) {
       raw[k] = k < n ? alpha[w0 + k] : 0.5f;
       m[k] = k < n ? mask[w0 + k] : 0.0f;
     }
-    vf16 a = raw > lo ? raw : lo;
+    vf a = raw > lo ? raw : lo;
     a = a < hi ? a : hi;
     a = raw == raw ? a : raw;  // a NaN alpha stays NaN, as with torch's clamp
-    const vf16 u = 1.0f - a;
-    const vf16 l0 = u == 1.0f ? -a : vlogf(u) / (u - 1.0f) * -a;
-    const vf16 la = vlogf(a);
+    const vf u = 1.0f - a;
+    const vf l0 = u == 1.0f ? -a : vlogf(u) / (u - 1.0f) * -a;
+    const vf la = vlogf(a);
     // combined in double: where m = 1 and a ~ 1, l0 + (la - l0) would cancel badly in float
     for (int k = 0; k < n; ++k) sum -= double(l0[k]) + double(m[k]) * (double(la[k]) - double(l0[k]));
   }
