@@ -25,10 +25,12 @@ Composability:
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import hashlib
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
@@ -196,6 +198,30 @@ def view_loss(
     return loss, parts
 
 
+@contextlib.contextmanager
+def _cyclic_gc_paused(every: int = 100) -> Iterator[Callable[[int], None]]:
+    """Python's automatic cyclic garbage collection off for a training loop; yields ``tick(step)``, which
+    collects the youngest generation every ``every`` steps instead.
+
+    The loop makes no reference cycles (measured: 0 unreachable objects per 100 iterations), but it allocates
+    enough objects to trigger a collection every iteration, and every few hundred iterations one of them
+    rescans every object of the process (~200k after importing torch, ~100 ms): ~1 ms per iteration on
+    average, 3-4% of a coarse iteration. The ticks still free any cycles that callbacks (``extra_loss``,
+    ``on_progress``) might make. The previous state is restored on exit."""
+    was_enabled = gc.isenabled()
+    gc.disable()
+
+    def tick(step: int) -> None:
+        if step % every == 0:
+            gc.collect(0)
+
+    try:
+        yield tick
+    finally:
+        if was_enabled:
+            gc.enable()
+
+
 def _rng_state(generator: torch.Generator) -> torch.Tensor:
     return generator.get_state().clone()
 
@@ -276,80 +302,84 @@ def optimize(
             stats.resumed_from = start
 
     fixed_bg = torch.tensor(config.background, dtype=torch.float32)
-    for step in range(start + 1, config.iterations + 1):
-        opt.set_means_lr(step)
-        active_sh = min(config.sh_degree, start_sh_degree + (step // max(config.sh_increase_every, 1)))
-        if sample_view is not None:
-            index = int(sample_view(step, generator))
-        else:
-            if not order:
-                order = torch.randperm(len(views), generator=generator).tolist()
-            index = order.pop()
-        view = views[index]
-        bg = torch.rand(3, generator=generator) if config.random_background else fixed_bg
-        g = opt.gaussians()
-        out = _render(g, view.camera, active_sh, bg, config.backend)
-        strategy.pre_backward(step, out)
-        loss, parts = view_loss(out, view, bg, config, step)
-        if extra_loss is not None:
-            extra = extra_loss(step, g, out, view, index)
-            if extra is not None:
-                loss = loss + extra
-                parts["extra"] = extra.item()
-        loss.backward()
-        strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
-        opt.step()
-        changed = strategy.after_step(step, opt, generator)
-        if config.floaters.due(step):
-            lam = config.floaters.lambda_at(step)
-            remove = floater_mask(
-                opt.params["means"].detach().numpy(), lam, max_fraction=config.floaters.max_remove_fraction
-            )
-            n_removed = int(remove.sum())
-            if n_removed:
-                keep = torch.from_numpy(~remove)
-                opt.keep(keep)
-                strategy.on_external_prune(keep)
-            stats.floaters_removed += n_removed
-            stats.floater_passes.append(
-                {"step": step, "lambda": round(lam, 6), "removed": n_removed, "remaining": len(opt)}
-            )
-            changed = {**changed, "floaters": n_removed}
-        stats.max_count = max(stats.max_count, len(opt))
-        stats.iterations = step
-        if step % max(config.log_every, 1) == 0 or step == config.iterations:
-            stats.loss_log.append(
-                {
-                    "step": step,
-                    "loss": round(loss.item(), 6),
-                    "n": len(opt),
-                    **{k: round(v, 6) for k, v in parts.items()},
-                }
-            )
-        if on_progress is not None:
-            on_progress(step, {"loss": loss.item(), "n": len(opt), "view": index, **parts, **changed})
-        if (
-            checkpoint is not None
-            and checkpoint.every > 0
-            and step % checkpoint.every == 0
-            and step < config.iterations
-        ):
-            stats.densify = dict(getattr(strategy, "counts", {}))
-            stats.final_count = len(opt)
-            _save_checkpoint(
-                checkpoint,
-                {
-                    "format": CHECKPOINT_FORMAT,
-                    "fingerprint": fingerprint,
-                    "step": step,
-                    "optimizer": opt.state_dict(),
-                    "strategy": strategy.state_dict(),
-                    "rng": _rng_state(generator),
-                    "order": list(order),
-                    "stats": stats.to_dict(),
-                },
-                step,
-            )
+    with _cyclic_gc_paused() as gc_tick:
+        for step in range(start + 1, config.iterations + 1):
+            gc_tick(step)
+            opt.set_means_lr(step)
+            active_sh = min(config.sh_degree, start_sh_degree + (step // max(config.sh_increase_every, 1)))
+            if sample_view is not None:
+                index = int(sample_view(step, generator))
+            else:
+                if not order:
+                    order = torch.randperm(len(views), generator=generator).tolist()
+                index = order.pop()
+            view = views[index]
+            bg = torch.rand(3, generator=generator) if config.random_background else fixed_bg
+            g = opt.gaussians()
+            out = _render(g, view.camera, active_sh, bg, config.backend)
+            strategy.pre_backward(step, out)
+            loss, parts = view_loss(out, view, bg, config, step)
+            if extra_loss is not None:
+                extra = extra_loss(step, g, out, view, index)
+                if extra is not None:
+                    loss = loss + extra
+                    parts["extra"] = extra.item()
+            loss.backward()
+            strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
+            opt.step()
+            changed = strategy.after_step(step, opt, generator)
+            if config.floaters.due(step):
+                lam = config.floaters.lambda_at(step)
+                remove = floater_mask(
+                    opt.params["means"].detach().numpy(),
+                    lam,
+                    max_fraction=config.floaters.max_remove_fraction,
+                )
+                n_removed = int(remove.sum())
+                if n_removed:
+                    keep = torch.from_numpy(~remove)
+                    opt.keep(keep)
+                    strategy.on_external_prune(keep)
+                stats.floaters_removed += n_removed
+                stats.floater_passes.append(
+                    {"step": step, "lambda": round(lam, 6), "removed": n_removed, "remaining": len(opt)}
+                )
+                changed = {**changed, "floaters": n_removed}
+            stats.max_count = max(stats.max_count, len(opt))
+            stats.iterations = step
+            if step % max(config.log_every, 1) == 0 or step == config.iterations:
+                stats.loss_log.append(
+                    {
+                        "step": step,
+                        "loss": round(loss.item(), 6),
+                        "n": len(opt),
+                        **{k: round(v, 6) for k, v in parts.items()},
+                    }
+                )
+            if on_progress is not None:
+                on_progress(step, {"loss": loss.item(), "n": len(opt), "view": index, **parts, **changed})
+            if (
+                checkpoint is not None
+                and checkpoint.every > 0
+                and step % checkpoint.every == 0
+                and step < config.iterations
+            ):
+                stats.densify = dict(getattr(strategy, "counts", {}))
+                stats.final_count = len(opt)
+                _save_checkpoint(
+                    checkpoint,
+                    {
+                        "format": CHECKPOINT_FORMAT,
+                        "fingerprint": fingerprint,
+                        "step": step,
+                        "optimizer": opt.state_dict(),
+                        "strategy": strategy.state_dict(),
+                        "rng": _rng_state(generator),
+                        "order": list(order),
+                        "stats": stats.to_dict(),
+                    },
+                    step,
+                )
     stats.final_count = len(opt)
     stats.densify = dict(getattr(strategy, "counts", {}))
     if not math.isfinite(float(opt.params["means"].detach().sum())):

@@ -32,8 +32,6 @@ constexpr int NG = 10;   // gradient floats per (tile, Gaussian): dmx dmy da db 
 using go_simd::vany;
 using go_simd::vf;
 using go_simd::vi;
-typedef float vf8 __attribute__((vector_size(32)));
-typedef float vf4 __attribute__((vector_size(16)));
 static const vf LANE = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
 
 static inline vf splat(float x) { return vf{} + x; }
@@ -61,12 +59,36 @@ static inline vf vexp_neg(vf x) {
   return y * (vf)bits;
 }
 
-// Sum of the 16 lanes in a fixed tree order (deterministic).
-static inline float hsum(vf v) {
-  const vf8 a = __builtin_shufflevector(v, v, 0, 1, 2, 3, 4, 5, 6, 7) +
-                __builtin_shufflevector(v, v, 8, 9, 10, 11, 12, 13, 14, 15);
-  const vf4 b = __builtin_shufflevector(a, a, 0, 1, 2, 3) + __builtin_shufflevector(a, a, 4, 5, 6, 7);
-  return (b[0] + b[2]) + (b[1] + b[3]);
+// Lane sums of several vectors at once, through a transposition tree: each fold adds the lane pairs of two
+// vectors and packs both results into one vector, halving the lanes per source vector. Every source vector
+// is summed in the same fixed order (deterministic): (l0..7 + l8..15), then (0..3 + 4..7), then
+// (b0 + b2) + (b1 + b3). Ten sums cost 33 vector operations instead of ~90 for ten separate reductions.
+static inline vf fold8(vf u, vf v) {  // [u0..7 + u8..15 | v0..7 + v8..15]
+  return __builtin_shufflevector(u, v, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23) +
+         __builtin_shufflevector(u, v, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
+}
+static inline vf fold4(vf p, vf q) {  // each 8-lane group g: g0..3 + g4..7
+  return __builtin_shufflevector(p, q, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27) +
+         __builtin_shufflevector(p, q, 4, 5, 6, 7, 12, 13, 14, 15, 20, 21, 22, 23, 28, 29, 30, 31);
+}
+static inline vf fold2(vf r, vf s) {  // each 4-lane group g: (g0 + g2, g1 + g3)
+  return __builtin_shufflevector(r, s, 0, 1, 4, 5, 8, 9, 12, 13, 16, 17, 20, 21, 24, 25, 28, 29) +
+         __builtin_shufflevector(r, s, 2, 3, 6, 7, 10, 11, 14, 15, 18, 19, 22, 23, 26, 27, 30, 31);
+}
+static inline vf fold1(vf e, vf f) {  // each lane pair: e + o
+  return __builtin_shufflevector(e, f, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30) +
+         __builtin_shufflevector(e, f, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
+}
+
+// out[k] = sum of the lanes of v[k], k < NG (= 10).
+static inline void hsum_rows(const vf* v, float* out) {
+  static_assert(NG == 10, "the tree below pairs ten vectors");
+  const vf z{};
+  const vf a0 = fold8(v[0], v[1]), a1 = fold8(v[2], v[3]), a2 = fold8(v[4], v[5]), a3 = fold8(v[6], v[7]);
+  const vf a4 = fold8(v[8], v[9]);
+  const vf b0 = fold4(a0, a1), b1 = fold4(a2, a3), b2 = fold4(a4, z);
+  const vf sums = fold1(fold2(b0, b1), fold2(b2, z));  // lane k: the sum of v[k]
+  std::memcpy(out, &sums, NG * sizeof(float));
 }
 
 // Order-preserving unsigned key of a float (negative values flip all bits, positive ones the sign bit).
@@ -546,8 +568,10 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
       vf s_mx{}, s_my{}, s_a{}, s_b{}, s_c{}, s_o{}, s_f0{}, s_f1{}, s_f2{}, s_f3{};
       alignas(64) int32_t hit[TILE];
       rows_may_hit(g, float(x0), float(y0), hit);
+      bool touched = false;
       for (int r = 0; r < TILE; ++r) {
         if ((i >= row_max[r]) | (hit[r] == 0)) continue;
+        touched = true;
         const float dy = my - (y0 + r + 0.5f);
         const float cdy2 = cc * dy * dy, bdy = cb * dy;
         const vf sigma = 0.5f * (ca * dx2 + cdy2) + bdy * dx;
@@ -575,17 +599,9 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
         s_b += d_sig * dx * dy;
         s_c += 0.5f * d_sig * (dy * dy);
       }
-      float* out = R + (start + i) * NG;
-      out[0] = hsum(s_mx);
-      out[1] = hsum(s_my);
-      out[2] = hsum(s_a);
-      out[3] = hsum(s_b);
-      out[4] = hsum(s_c);
-      out[5] = hsum(s_o);
-      out[6] = hsum(s_f0);
-      out[7] = hsum(s_f1);
-      out[8] = hsum(s_f2);
-      out[9] = hsum(s_f3);
+      if (!touched) continue;  // its row stays zero (memset above)
+      const vf sums[NG] = {s_mx, s_my, s_a, s_b, s_c, s_o, s_f0, s_f1, s_f2, s_f3};
+      hsum_rows(sums, R + (start + i) * NG);
     }
   });
 
