@@ -77,9 +77,13 @@ def test_each_gaussian_projects_as_if_alone(cpu_ext, deg, aa):
         one = [t[i : i + 1].contiguous() for t in inputs]
         one_grads = [t[:, i : i + 1].contiguous() for t in grads]
         f1, b1 = _project(cpu_ext, one, vm, K, one_grads, deg, aa)
-        for name, whole, alone in zip(("means2d", "conics", "colors", "opac", "depth", "radii"), fwd, f1):
+        for name, whole, alone in zip(
+            ("means2d", "conics", "colors", "opac", "depth", "radii"), fwd, f1, strict=True
+        ):
             assert _same(whole[:, i : i + 1], alone), (i, name)
-        for name, whole, alone in zip(("means", "quats", "scales", "opac", "colors"), bwd[:5], b1[:5]):
+        for name, whole, alone in zip(
+            ("means", "quats", "scales", "opac", "colors"), bwd[:5], b1[:5], strict=True
+        ):
             assert _same(whole[i : i + 1], alone), (i, name)
     # bands above the active degree get no gradient
     assert (bwd[4][:, (deg + 1) ** 2 :] == 0).all()
@@ -93,11 +97,17 @@ def test_reordering_permutes_every_output(cpu_ext):
     perm = torch.randperm(37, generator=torch.Generator().manual_seed(1))
     fwd, bwd = _project(cpu_ext, inputs, vm, K, grads, 2, True)
     pf, pb = _project(
-        cpu_ext, [t[perm].contiguous() for t in inputs], vm, K, [t[:, perm].contiguous() for t in grads], 2, True
+        cpu_ext,
+        [t[perm].contiguous() for t in inputs],
+        vm,
+        K,
+        [t[:, perm].contiguous() for t in grads],
+        2,
+        True,
     )
-    for whole, permuted in zip(fwd, pf):
+    for whole, permuted in zip(fwd, pf, strict=True):
         assert _same(whole[:, perm], permuted)
-    for whole, permuted in zip(bwd[:5], pb[:5]):
+    for whole, permuted in zip(bwd[:5], pb[:5], strict=True):
         assert _same(whole[perm], permuted)
 
 
@@ -116,11 +126,13 @@ def test_finite_gaussians_match_the_float64_reference(cpu_ext):
     leaves = [t.double().requires_grad_() for t in inputs + [vm]]
     ref = project_gaussians(*leaves[:5], leaves[5], K.double(), W, H, sh_degree=3, antialiased=True)
     outs = [ref.means2d, ref.conics, ref.colors, ref.opacities, ref.depths]
-    for got, want in zip(fwd[:5], outs):
+    for got, want in zip(fwd[:5], outs, strict=True):
         torch.testing.assert_close(got.double(), want.detach(), rtol=2e-5, atol=1e-5)
     assert torch.equal(fwd[5], ref.radii)
-    loss = sum((o * g.double()).sum() for o, g in zip(outs, grads))
+    loss = sum((o * g.double()).sum() for o, g in zip(outs, grads, strict=True))
     want_grads = torch.autograd.grad(loss, leaves)
-    for name, got, want in zip(("means", "quats", "scales", "opac", "colors", "viewmats"), bwd, want_grads):
+    for name, got, want in zip(
+        ("means", "quats", "scales", "opac", "colors", "viewmats"), bwd, want_grads, strict=True
+    ):
         scale = want.abs().max().clamp_min(1e-12)
         assert ((got.double() - want).abs().max() / scale) < 2e-5, name

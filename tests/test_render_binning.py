@@ -184,3 +184,62 @@ def test_binning_is_a_stable_depth_sort_independent_of_threads(cpu_ext):
         for t in range(tx * ty):
             ids = gid[toff[c * tx * ty + t] : toff[c * tx * ty + t + 1]].tolist()
             assert ids == sorted(expected.get(t, []), key=lambda i: (depth[i], i)), (c, t)
+
+
+def _boundary_2d_gaussians(n: int, seed: int) -> dict[str, torch.Tensor]:
+    """Small Gaussians (0.3-3 px) centred within a few pixels of the middle of a tile row or of a tile
+    edge: their reach ends on either side of the boundary between the two 8-pixel halves the kernels
+    evaluate separately."""
+    gen = torch.Generator().manual_seed(seed)
+
+    def u(*shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=gen, dtype=torch.float64)
+
+    tile_x = torch.randint(0, W // TILE, (n,), generator=gen).double() * TILE
+    offset = torch.where(u(n) < 0.7, 8.0, 0.0) + (u(n) - 0.5) * 8.0  # around x0 + 8 or x0
+    means = torch.stack([tile_x + offset, u(n) * H], -1)
+    theta = u(n) * math.pi
+    s1 = 0.3 + u(n) * 2.7
+    s2 = s1 * (0.3 + 0.7 * u(n))
+    cs, sn = torch.cos(theta), torch.sin(theta)
+    rot = torch.stack([torch.stack([cs, -sn], -1), torch.stack([sn, cs], -1)], -2)
+    cov = rot @ torch.diag_embed(torch.stack([s1**2, s2**2], -1)) @ rot.transpose(-1, -2)
+    inv = torch.linalg.inv(cov)
+    return {
+        "means2d": means.float()[None],
+        "conics": torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1).float()[None],
+        "feats": u(n, 4).float()[None],
+        "opacities": (0.004 + 0.9 * u(n)).float()[None],
+        "depths": (1.0 + u(n)).float()[None],
+        "radii": torch.ceil(3.0 * s1).to(torch.int32)[None],
+    }
+
+
+def test_half_rows_lose_no_contribution_at_their_boundary(cpu_ext):
+    """The compositing loops evaluate only the 8-pixel halves of a tile row that a Gaussian can reach: a
+    half skipped wrongly would drop contributions >= 1/255 at pixels 7 and 8 (or 15 and 0) of a tile."""
+    d = _boundary_2d_gaussians(600, 4)
+    outs = {}
+    for name, fn, dtype in (
+        ("cpu", rasterize_cpu, torch.float32),
+        ("ref", rasterize_reference, torch.float64),
+    ):
+        leaves = {
+            k: d[k].to(dtype).clone().requires_grad_() for k in ("means2d", "conics", "feats", "opacities")
+        }
+        feats, alpha = fn(*leaves.values(), d["depths"].to(dtype), d["radii"], W, H)
+        w = torch.linspace(0.5, 1.5, feats.numel(), dtype=dtype).reshape(feats.shape)
+        ((feats * w).sum() + alpha.square().sum()).backward()
+        outs[name] = (
+            feats.detach().double(),
+            alpha.detach().double(),
+            {k: v.grad.double() for k, v in leaves.items()},
+        )
+    (fc, ac, gc), (fr, ar, gr) = outs["cpu"], outs["ref"]
+    cols = torch.arange(W) % TILE
+    at_boundary = (cols == 7) | (cols == 8) | (cols == 0) | (cols == 15)
+    assert float(ar[0, :, at_boundary].sum()) > 50.0  # the boundary columns are well covered
+    for cpu, ref in ((fc, fr), (ac, ar)):
+        assert float((cpu - ref).abs().max()) < 5e-4
+    for k in ("means2d", "conics", "feats", "opacities"):
+        assert float((gc[k] - gr[k]).abs().max()) <= 5e-4 * float(gr[k].abs().max()), k
