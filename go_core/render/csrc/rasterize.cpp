@@ -1,9 +1,10 @@
 // Tile-based Gaussian rasterizer for the CPU: binning, forward compositing and its hand-written backward.
 //
 // The maths is documented in docs/rendering.md and mirrors go_core/render/reference.py exactly.
-// Parallel over 16x16 tiles (OpenMP, dynamic schedule, at::get_num_threads() threads); inside a tile each
-// half row of 8 pixels that a Gaussian can reach is one 8-lane vector step with a branch-free exp (most
-// Gaussians reach only one half of a row: 82% of the evaluated rows on a trained 27k-Gaussian model).
+// Parallel over 16x16 tiles (OpenMP, dynamic schedule, at::get_num_threads() threads); inside a tile a row
+// of 16 pixels is one 16-lane vector step with a branch-free exp, or one 8-lane step where a Gaussian can
+// reach only one half of the row (82% of the evaluated rows on a trained 27k-Gaussian model); the backward
+// takes a row that both halves need as two 8-lane steps.
 // Every tile is processed by one thread and per-Gaussian gradients are summed in a fixed order, so results
 // are bit-identical across runs and thread counts.
 
@@ -516,8 +517,38 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
       const float my = g[1], ca = g[2], cb = g[3], cc = g[4], o = g[5];
       const float f0 = g[6], f1 = g[7], f2 = g[8], f3 = g[9];
       const float dx0 = g[0] - (x0 + 0.5f);
+      const vf dx = dx0 - LANE, dx2 = dx * dx;
       const vh dxh[2] = {dx0 - HLANE, dx0 - (HLANE + float(HALF))};
       const vh dx2h[2] = {dxh[0] * dxh[0], dxh[1] * dxh[1]};
+      // Composites this Gaussian into pixels k .. k+lanes-1 of row r (16 lanes: the whole row; 8: one half).
+      auto span = [&](auto dxv, auto dx2v, int r, int k, float cdy2, float bdy) {
+        using V = decltype(dxv);
+        using VI = decltype(dxv < dxv);
+        const V sigma = 0.5f * (ca * dx2v + cdy2) + bdy * dxv;
+        const V al = vmin(V{} + ALPHA_MAX, o * vexp_neg(-sigma));
+        float* tr = reinterpret_cast<float*>(&Tr[r]) + k;
+        int32_t* act = reinterpret_cast<int32_t*>(&ACT[r]) + k;
+        const VI use = (sigma >= 0.0f) & (al >= ALPHA_MIN) & ld<VI>(act);
+        const V t = ld<V>(tr);
+        const V nt = t * (1.0f - al);
+        const VI halt = use & (nt <= T_STOP);
+        const VI contrib = use & ~halt;
+        const V w = contrib ? al * t : V{};
+        float* a0 = reinterpret_cast<float*>(&A0[r]) + k;
+        float* a1 = reinterpret_cast<float*>(&A1[r]) + k;
+        float* a2 = reinterpret_cast<float*>(&A2[r]) + k;
+        float* a3 = reinterpret_cast<float*>(&A3[r]) + k;
+        float* aw = reinterpret_cast<float*>(&AW[r]) + k;
+        int32_t* sp = reinterpret_cast<int32_t*>(&ST[r]) + k;
+        st(a0, ld<V>(a0) + w * f0);
+        st(a1, ld<V>(a1) + w * f1);
+        st(a2, ld<V>(a2) + w * f2);
+        st(a3, ld<V>(a3) + w * f3);
+        st(aw, ld<V>(aw) + w);  // alpha as the sum of weights: no cancellation in 1 - T
+        st(tr, contrib ? nt : t);
+        st(sp, halt ? VI{} + i : ld<VI>(sp));
+        st(act, ld<VI>(act) & ~halt);
+      };
       alignas(64) int32_t hit[TILE];
       rows_may_hit(g, float(x0), float(y0), hit);
       for (int r = 0; r < TILE; ++r) {
@@ -525,34 +556,11 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
         if (!halves) continue;
         const float dy = my - (y0 + r + 0.5f);
         const float cdy2 = cc * dy * dy, bdy = cb * dy;
-        for (int h = 0; h < 2; ++h) {
-          if (!(halves & (1 << h))) continue;
-          const int k = HALF * h;
-          const vh dx = dxh[h], dx2 = dx2h[h];
-          const vh sigma = 0.5f * (ca * dx2 + cdy2) + bdy * dx;
-          const vh al = vmin(vh{} + ALPHA_MAX, o * vexp_neg(-sigma));
-          float* tr = reinterpret_cast<float*>(&Tr[r]) + k;
-          int32_t* act = reinterpret_cast<int32_t*>(&ACT[r]) + k;
-          const vih use = (sigma >= 0.0f) & (al >= ALPHA_MIN) & ld<vih>(act);
-          const vh t = ld<vh>(tr);
-          const vh nt = t * (1.0f - al);
-          const vih halt = use & (nt <= T_STOP);
-          const vih contrib = use & ~halt;
-          const vh w = contrib ? al * t : vh{};
-          float* a0 = reinterpret_cast<float*>(&A0[r]) + k;
-          float* a1 = reinterpret_cast<float*>(&A1[r]) + k;
-          float* a2 = reinterpret_cast<float*>(&A2[r]) + k;
-          float* a3 = reinterpret_cast<float*>(&A3[r]) + k;
-          float* aw = reinterpret_cast<float*>(&AW[r]) + k;
-          int32_t* sp = reinterpret_cast<int32_t*>(&ST[r]) + k;
-          st(a0, ld<vh>(a0) + w * f0);
-          st(a1, ld<vh>(a1) + w * f1);
-          st(a2, ld<vh>(a2) + w * f2);
-          st(a3, ld<vh>(a3) + w * f3);
-          st(aw, ld<vh>(aw) + w);  // alpha as the sum of weights: no cancellation in 1 - T
-          st(tr, contrib ? nt : t);
-          st(sp, halt ? vih{} + i : ld<vih>(sp));
-          st(act, ld<vih>(act) & ~halt);
+        if (halves == 3) {
+          span(dx, dx2, r, 0, cdy2, bdy);
+        } else {
+          const int h = halves >> 1;
+          span(dxh[h], dx2h[h], r, HALF * h, cdy2, bdy);
         }
       }
       if ((i & 7) == 7)  // retire finished rows (lazily: a finished row computes nothing anyway)
