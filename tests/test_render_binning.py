@@ -23,6 +23,16 @@ def cpu_ext():
     return load_extension()
 
 
+def _conics(theta: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
+    """Upper triangles (a, b, c) of the inverse covariances of 2D Gaussians with axes s1, s2 rotated by
+    theta."""
+    cs, sn = torch.cos(theta), torch.sin(theta)
+    rot = torch.stack([torch.stack([cs, -sn], -1), torch.stack([sn, cs], -1)], -2)
+    cov = rot @ torch.diag_embed(torch.stack([s1**2, s2**2], -1)) @ rot.transpose(-1, -2)
+    inv = torch.linalg.inv(cov)
+    return torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1)
+
+
 def _hard_2d_gaussians(n: int, seed: int) -> dict[str, torch.Tensor]:
     """Rotated, very anisotropic (up to 300:1), tiny to large, low to full opacity (some below 1/255),
     centres partly off-screen: the cases where a 3-sigma rectangle is a poor fit."""
@@ -35,14 +45,9 @@ def _hard_2d_gaussians(n: int, seed: int) -> dict[str, torch.Tensor]:
     theta = u(n) * math.pi
     s1 = 10 ** (u(n) * 2.0 - 0.5)  # 0.3 .. 30 px
     s2 = s1 * 10 ** (-u(n) * 2.5)
-    cs, sn = torch.cos(theta), torch.sin(theta)
-    rot = torch.stack([torch.stack([cs, -sn], -1), torch.stack([sn, cs], -1)], -2)
-    cov = rot @ torch.diag_embed(torch.stack([s1**2, s2**2], -1)) @ rot.transpose(-1, -2)
-    inv = torch.linalg.inv(cov)
-    conics = torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1)
     return {
         "means2d": means.float()[None],
-        "conics": conics.float()[None],
+        "conics": _conics(theta, s1, s2).float()[None],
         "feats": u(n, 4).float()[None],
         "opacities": (10 ** (-u(n) * 3.0)).float()[None],
         "depths": (1.0 + u(n)).float()[None],
@@ -125,13 +130,11 @@ def test_binning_keeps_every_reachable_tile_and_drops_the_rest(cpu_ext, seed):
         assert len(pos) == sum(1 for t, i in kept if i == n)
 
 
-def test_culled_binning_composites_like_the_reference(cpu_ext):
-    d = _hard_2d_gaussians(300, 2)
-    outs = {}
-    for name, fn, dtype in (
-        ("cpu", rasterize_cpu, torch.float32),
-        ("ref", rasterize_reference, torch.float64),
-    ):
+def _composite_cpu_and_reference(d: dict[str, torch.Tensor]) -> list[tuple]:
+    """(feats, alpha, gradients of a weighted loss) in float64, from the CPU kernel (float32) and from the
+    float64 reference."""
+    outs = []
+    for fn, dtype in ((rasterize_cpu, torch.float32), (rasterize_reference, torch.float64)):
         leaves = {
             k: d[k].to(dtype).clone().requires_grad_() for k in ("means2d", "conics", "feats", "opacities")
         }
@@ -139,8 +142,12 @@ def test_culled_binning_composites_like_the_reference(cpu_ext):
         w = torch.linspace(0.5, 1.5, feats.numel(), dtype=dtype).reshape(feats.shape)
         ((feats * w).sum() + alpha.square().sum()).backward()
         grads = {k: v.grad.double() for k, v in leaves.items()}
-        outs[name] = (feats.detach().double(), alpha.detach().double(), grads)
-    (fc, ac, gc), (fr, ar, gr) = outs["cpu"], outs["ref"]
+        outs.append((feats.detach().double(), alpha.detach().double(), grads))
+    return outs
+
+
+def test_culled_binning_composites_like_the_reference(cpu_ext):
+    (fc, ac, gc), (fr, ar, gr) = _composite_cpu_and_reference(_hard_2d_gaussians(300, 2))
     assert float(ar.sum()) > 100.0
     # float32 vs float64: a few pixels flip at the alpha = 1/255 threshold behind low transmittance (~1e-4);
     # a wrongly dropped tile would lose whole contributions (>= 1/255 of a feature)
@@ -201,13 +208,9 @@ def _boundary_2d_gaussians(n: int, seed: int) -> dict[str, torch.Tensor]:
     theta = u(n) * math.pi
     s1 = 0.3 + u(n) * 2.7
     s2 = s1 * (0.3 + 0.7 * u(n))
-    cs, sn = torch.cos(theta), torch.sin(theta)
-    rot = torch.stack([torch.stack([cs, -sn], -1), torch.stack([sn, cs], -1)], -2)
-    cov = rot @ torch.diag_embed(torch.stack([s1**2, s2**2], -1)) @ rot.transpose(-1, -2)
-    inv = torch.linalg.inv(cov)
     return {
         "means2d": means.float()[None],
-        "conics": torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1).float()[None],
+        "conics": _conics(theta, s1, s2).float()[None],
         "feats": u(n, 4).float()[None],
         "opacities": (0.004 + 0.9 * u(n)).float()[None],
         "depths": (1.0 + u(n)).float()[None],
@@ -218,24 +221,7 @@ def _boundary_2d_gaussians(n: int, seed: int) -> dict[str, torch.Tensor]:
 def test_half_rows_lose_no_contribution_at_their_boundary(cpu_ext):
     """The compositing loops evaluate only the 8-pixel halves of a tile row that a Gaussian can reach: a
     half skipped wrongly would drop contributions >= 1/255 at pixels 7 and 8 (or 15 and 0) of a tile."""
-    d = _boundary_2d_gaussians(600, 4)
-    outs = {}
-    for name, fn, dtype in (
-        ("cpu", rasterize_cpu, torch.float32),
-        ("ref", rasterize_reference, torch.float64),
-    ):
-        leaves = {
-            k: d[k].to(dtype).clone().requires_grad_() for k in ("means2d", "conics", "feats", "opacities")
-        }
-        feats, alpha = fn(*leaves.values(), d["depths"].to(dtype), d["radii"], W, H)
-        w = torch.linspace(0.5, 1.5, feats.numel(), dtype=dtype).reshape(feats.shape)
-        ((feats * w).sum() + alpha.square().sum()).backward()
-        outs[name] = (
-            feats.detach().double(),
-            alpha.detach().double(),
-            {k: v.grad.double() for k, v in leaves.items()},
-        )
-    (fc, ac, gc), (fr, ar, gr) = outs["cpu"], outs["ref"]
+    (fc, ac, gc), (fr, ar, gr) = _composite_cpu_and_reference(_boundary_2d_gaussians(600, 4))
     cols = torch.arange(W) % TILE
     at_boundary = (cols == 7) | (cols == 8) | (cols == 0) | (cols == 15)
     assert float(ar[0, :, at_boundary].sum()) > 50.0  # the boundary columns are well covered

@@ -51,6 +51,9 @@ template <class V>
 static inline V vmin(V a, V b) { return a < b ? a : b; }
 template <class V>
 static inline V vmax(V a, V b) { return a > b ? a : b; }
+// Lane k of a tile-row vector: loads and stores of part of the row start there.
+static inline float* lane_ptr(vf& v, int k) { return reinterpret_cast<float*>(&v) + k; }
+static inline int32_t* lane_ptr(vi& v, int k) { return reinterpret_cast<int32_t*>(&v) + k; }
 template <class V>
 static inline V ld(const void* p) {
   V v;
@@ -63,35 +66,28 @@ static inline void st(void* p, V v) { std::memcpy(p, &v, sizeof(V)); }
 // floor(t) for |t| < 2^23, and y * 2^e for an integral e in [-126, 127]. With AVX-512 one instruction each
 // (vrndscaleps, vscalefps); otherwise through integer conversions. Both forms round identically (floor is
 // exact; scaling by a power of two is one correctly rounded product), so results do not depend on the ISA.
-static inline vf vfloor(vf t) {
+template <class V>
+static inline V vfloor(V t) {
 #ifdef __AVX512F__
-  return (vf)_mm512_roundscale_ps((__m512)t, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
-#else
-  const vf fi = __builtin_convertvector(__builtin_convertvector(t, vi), vf);
-  return fi > t ? fi - 1.0f : fi;
+  if constexpr (sizeof(V) == 64) return (V)_mm512_roundscale_ps((__m512)t, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
 #endif
+#if defined(__AVX512F__) && defined(__AVX512VL__)
+  if constexpr (sizeof(V) == 32) return (V)_mm256_roundscale_ps((__m256)t, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+#endif
+  using VI = decltype(t < t);
+  const V fi = __builtin_convertvector(__builtin_convertvector(t, VI), V);
+  return fi > t ? fi - 1.0f : fi;
 }
-static inline vf vscale2(vf y, vf e) {
+template <class V>
+static inline V vscale2(V y, V e) {
 #ifdef __AVX512F__
-  return (vf)_mm512_scalef_ps((__m512)y, (__m512)e);
-#else
-  return y * (vf)((__builtin_convertvector(e, vi) + 127) << 23);
+  if constexpr (sizeof(V) == 64) return (V)_mm512_scalef_ps((__m512)y, (__m512)e);
 #endif
-}
-static inline vh vfloor(vh t) {
 #if defined(__AVX512F__) && defined(__AVX512VL__)
-  return (vh)_mm256_roundscale_ps((__m256)t, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
-#else
-  const vh fi = __builtin_convertvector(__builtin_convertvector(t, vih), vh);
-  return fi > t ? fi - 1.0f : fi;
+  if constexpr (sizeof(V) == 32) return (V)_mm256_scalef_ps((__m256)y, (__m256)e);
 #endif
-}
-static inline vh vscale2(vh y, vh e) {
-#if defined(__AVX512F__) && defined(__AVX512VL__)
-  return (vh)_mm256_scalef_ps((__m256)y, (__m256)e);
-#else
-  return y * (vh)((__builtin_convertvector(e, vih) + 127) << 23);
-#endif
+  using VI = decltype(y < y);
+  return y * (V)((__builtin_convertvector(e, VI) + 127) << 23);
 }
 
 // exp(x) for x <= 0 (clamped below at -87): Cody-Waite range reduction and the Cephes degree-6 polynomial,
@@ -117,9 +113,8 @@ static inline V vexp_neg(V x) {
 // vectors and packs both results into one vector, halving the lanes per source vector. Every source vector
 // is summed in the same fixed order (deterministic): (l0..7 + l8..15), then (0..3 + 4..7), then
 // (b0 + b2) + (b1 + b3). Ten sums cost 33 vector operations instead of ~90 for ten separate reductions.
-static inline vf fold8(vf u, vf v) {  // [u0..7 + u8..15 | v0..7 + v8..15]
-  return __builtin_shufflevector(u, v, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23) +
-         __builtin_shufflevector(u, v, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
+static inline vf fold8(const vh* u, const vh* v) {  // u, v as halves: [u_lo + u_hi | v_lo + v_hi]
+  return __builtin_shufflevector(u[0] + u[1], v[0] + v[1], 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
 }
 static inline vf fold4(vf p, vf q) {  // each 8-lane group g: g0..3 + g4..7
   return __builtin_shufflevector(p, q, 0, 1, 2, 3, 8, 9, 10, 11, 16, 17, 18, 19, 24, 25, 26, 27) +
@@ -132,11 +127,6 @@ static inline vf fold2(vf r, vf s) {  // each 4-lane group g: (g0 + g2, g1 + g3)
 static inline vf fold1(vf e, vf f) {  // each lane pair: e + o
   return __builtin_shufflevector(e, f, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30) +
          __builtin_shufflevector(e, f, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
-}
-
-// fold8 of two vectors held as halves: [u_lo + u_hi | v_lo + v_hi] (the same additions).
-static inline vf fold8(const vh* u, const vh* v) {
-  return __builtin_shufflevector(u[0] + u[1], v[0] + v[1], 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
 }
 
 // out[k] = sum of the 16 lanes of v[k] (held as two 8-lane halves), k < NG (= 10).
@@ -526,20 +516,20 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
         using VI = decltype(dxv < dxv);
         const V sigma = 0.5f * (ca * dx2v + cdy2) + bdy * dxv;
         const V al = vmin(V{} + ALPHA_MAX, o * vexp_neg(-sigma));
-        float* tr = reinterpret_cast<float*>(&Tr[r]) + k;
-        int32_t* act = reinterpret_cast<int32_t*>(&ACT[r]) + k;
+        float* tr = lane_ptr(Tr[r], k);
+        int32_t* act = lane_ptr(ACT[r], k);
         const VI use = (sigma >= 0.0f) & (al >= ALPHA_MIN) & ld<VI>(act);
         const V t = ld<V>(tr);
         const V nt = t * (1.0f - al);
         const VI halt = use & (nt <= T_STOP);
         const VI contrib = use & ~halt;
         const V w = contrib ? al * t : V{};
-        float* a0 = reinterpret_cast<float*>(&A0[r]) + k;
-        float* a1 = reinterpret_cast<float*>(&A1[r]) + k;
-        float* a2 = reinterpret_cast<float*>(&A2[r]) + k;
-        float* a3 = reinterpret_cast<float*>(&A3[r]) + k;
-        float* aw = reinterpret_cast<float*>(&AW[r]) + k;
-        int32_t* sp = reinterpret_cast<int32_t*>(&ST[r]) + k;
+        float* a0 = lane_ptr(A0[r], k);
+        float* a1 = lane_ptr(A1[r], k);
+        float* a2 = lane_ptr(A2[r], k);
+        float* a3 = lane_ptr(A3[r], k);
+        float* aw = lane_ptr(AW[r], k);
+        int32_t* sp = lane_ptr(ST[r], k);
         st(a0, ld<V>(a0) + w * f0);
         st(a1, ld<V>(a1) + w * f1);
         st(a2, ld<V>(a2) + w * f2);
@@ -663,11 +653,11 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
         const vh vis = vexp_neg(-sigma);
         const vh al_raw = o * vis;
         const vh al = vmin(vh{} + ALPHA_MAX, al_raw);
-        const vih use = (sigma >= 0.0f) & (al >= ALPHA_MIN) & (iv < ld<vih>(reinterpret_cast<int32_t*>(&ST[r]) + k));
-        float* tr = reinterpret_cast<float*>(&Tr[r]) + k;
-        float* q = reinterpret_cast<float*>(&Q[r]) + k;
-        const vh g0 = ld<vh>(reinterpret_cast<float*>(&G0[r]) + k), g1 = ld<vh>(reinterpret_cast<float*>(&G1[r]) + k);
-        const vh g2 = ld<vh>(reinterpret_cast<float*>(&G2[r]) + k), g3 = ld<vh>(reinterpret_cast<float*>(&G3[r]) + k);
+        const vih use = (sigma >= 0.0f) & (al >= ALPHA_MIN) & (iv < ld<vih>(lane_ptr(ST[r], k)));
+        float* tr = lane_ptr(Tr[r], k);
+        float* q = lane_ptr(Q[r], k);
+        const vh g0 = ld<vh>(lane_ptr(G0[r], k)), g1 = ld<vh>(lane_ptr(G1[r], k));
+        const vh g2 = ld<vh>(lane_ptr(G2[r], k)), g3 = ld<vh>(lane_ptr(G3[r], k));
         const vh ra = 1.0f / (1.0f - al);
         const vh t_old = ld<vh>(tr);
         const vh ti = t_old * ra;
