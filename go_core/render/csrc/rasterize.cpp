@@ -45,6 +45,14 @@ typedef float vh __attribute__((vector_size(32)));    // half a tile row: 8 lane
 typedef int32_t vih __attribute__((vector_size(32)));
 static const vh HLANE = {0, 1, 2, 3, 4, 5, 6, 7};
 
+// Offsets dx = mx - x of a tile row's pixel centres from a Gaussian's centre, and their squares, by half
+// row: lane k of half h is pixel HALF*h + k. dx0 is the offset of the row's first pixel.
+struct HalfRowDx {
+  vh dx[2], dx2[2];
+  explicit HalfRowDx(float dx0)
+      : dx{dx0 - HLANE, dx0 - (HLANE + float(HALF))}, dx2{dx[0] * dx[0], dx[1] * dx[1]} {}
+};
+
 static inline vf splat(float x) { return vf{} + x; }
 static inline vi splati(int32_t x) { return vi{} + x; }
 template <class V>
@@ -508,8 +516,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
       const float f0 = g[6], f1 = g[7], f2 = g[8], f3 = g[9];
       const float dx0 = g[0] - (x0 + 0.5f);
       const vf dx = dx0 - LANE, dx2 = dx * dx;
-      const vh dxh[2] = {dx0 - HLANE, dx0 - (HLANE + float(HALF))};
-      const vh dx2h[2] = {dxh[0] * dxh[0], dxh[1] * dxh[1]};
+      const HalfRowDx hdx(dx0);
       // Composites this Gaussian into pixels k .. k+lanes-1 of row r (16 lanes: the whole row; 8: one half).
       auto span = [&](auto dxv, auto dx2v, int r, int k, float cdy2, float bdy) {
         using V = decltype(dxv);
@@ -550,7 +557,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
           span(dx, dx2, r, 0, cdy2, bdy);
         } else {
           const int h = halves >> 1;
-          span(dxh[h], dx2h[h], r, HALF * h, cdy2, bdy);
+          span(hdx.dx[h], hdx.dx2[h], r, HALF * h, cdy2, bdy);
         }
       }
       if ((i & 7) == 7)  // retire finished rows (lazily: a finished row computes nothing anyway)
@@ -637,8 +644,7 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
       const float my = g[1], ca = g[2], cb = g[3], cc = g[4], o = g[5];
       const float f0 = g[6], f1 = g[7], f2 = g[8], f3 = g[9];
       const float dx0 = g[0] - (x0 + 0.5f);
-      const vh dxh[2] = {dx0 - HLANE, dx0 - (HLANE + float(HALF))};
-      const vh dx2h[2] = {dxh[0] * dxh[0], dxh[1] * dxh[1]};
+      const HalfRowDx hdx(dx0);
       const vih iv = vih{} + i;
       // per-lane gradient sums of this pair, in half rows: mx my a b c o f0..f3
       vh sum[NG][2] = {};
@@ -648,7 +654,7 @@ std::vector<torch::Tensor> rasterize_backward(torch::Tensor params, torch::Tenso
       // One half row (8 pixels) of row r; the other half is out of the Gaussian's reach or already stopped.
       auto half_row = [&](int r, int h, float dy, float cdy2, float bdy) {
         const int k = HALF * h;
-        const vh dx = dxh[h], dx2 = dx2h[h];
+        const vh dx = hdx.dx[h], dx2 = hdx.dx2[h];
         const vh sigma = 0.5f * (ca * dx2 + cdy2) + bdy * dx;
         const vh vis = vexp_neg(-sigma);
         const vh al_raw = o * vis;
