@@ -1,16 +1,21 @@
 """Coarse-stage benchmark on the dev scenes: test-view PSNR/SSIM, Gaussian count and CPU seconds per variant.
 
-Variants (same iteration budget each):
-  hull          the default: visual-hull init, floater elimination with the default λe schedule
+Every variant starts from the coarse params of pipeline.yaml (``--profile`` picks a profile, e.g. ``paper``)
+and overrides a few (same iteration budget each):
+  hull          the profile's settings: visual-hull init, floater elimination with the default λe schedule
   random        ablation: vanilla-3DGS random init (no masks used for the init)
   hull_paper    floater schedule "paper" (λe 1 → 0) instead of the default "code" (1 → 2.33)
   hull_code     floater schedule "code" explicitly
   no_floaters   ablation: floater elimination off
+  drop / outside / mask10 / aniso / opacity   one regulariser on (see VARIANTS for the weights)
+  no_drop / no_outside / no_aniso / no_opacity  one regulariser off
+Variants join with "+" (e.g. ``drop+aniso``: both overrides).
 
-With ``--iterations N`` below the paper's 10 000, every step-based schedule (densification window and
-interval, opacity reset, SH raise, floater window and interval, position-lr decay) is scaled by N/10 000 so
-the run is a compressed version of the paper's. Test renders use a white background; the ground truth is the
-test photo composited on white with its mask (paper protocol).
+``--iterations N`` is the coarse budget knob (``coarse.iterations``): every step-based schedule (densification
+window and interval, opacity reset, SH raise, floater window and interval, position-lr decay) is scaled by
+N / ``coarse.schedule_iterations`` (10 000) in ``go_core.training.scale_schedule``, so the run is a
+compressed version of the paper's (opacity resets off when their period falls below 500). Test renders use
+a white background; the ground truth is the test photo composited on white with its mask (paper protocol).
 
     python benchmarks/coarse_dev.py --iterations 2000 --variants hull random \
         --out benchmarks/results/coarse_dev.json
@@ -19,6 +24,7 @@ test photo composited on white with its mask (paper protocol).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import platform
@@ -36,36 +42,37 @@ from go_core.training import TrainView, config_from_params, optimize
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 PAPER_ITERS = 10_000
-SCALED = {  # param: paper value (scaled by iterations / 10 000)
-    "densify_from": 500,
-    "densify_until": 6000,
-    "densify_every": 100,
-    "opacity_reset_every": 1000,
-    "sh_increase_every": 1000,
-    "floater_every": 500,
-    "floater_from": 500,
-    "floater_until": 6000,
-    "position_lr_max_steps": 30_000,
-}
 VARIANTS = {
     "hull": {"init": "hull", "params": {}},
     "random": {"init": "random", "params": {}},
     "hull_paper": {"init": "hull", "params": {"floater_schedule": "paper"}},
     "hull_code": {"init": "hull", "params": {"floater_schedule": "code"}},
     "no_floaters": {"init": "hull", "params": {"floaters": False}},
+    # regularisers (docs/coarse.md, "Sparse-view regularisers")
+    "drop": {"init": "hull", "params": {"drop_gamma": 0.2}},
+    "outside": {"init": "hull", "params": {"lambda_outside": 0.1}},
+    "mask10": {"init": "hull", "params": {"lambda_mask": 0.1}},
+    "aniso": {"init": "hull", "params": {"lambda_anisotropy": 0.01}},
+    "opacity": {"init": "hull", "params": {"lambda_opacity": 0.01}},
+    "no_drop": {"init": "hull", "params": {"drop_gamma": 0.0}},
+    "no_outside": {"init": "hull", "params": {"lambda_outside": 0.0}},
+    "no_aniso": {"init": "hull", "params": {"lambda_anisotropy": 0.0}},
+    "no_opacity": {"init": "hull", "params": {"lambda_opacity": 0.0}},
 }
 
 
-def scaled_params(iterations: int) -> dict:
-    f = iterations / PAPER_ITERS
-    out = {"iterations": iterations}
-    for k, v in SCALED.items():
-        out[k] = max(1, int(round(v * f)))
-    if iterations < 5000:
-        # Recovering from an opacity reset takes a fixed number of Adam steps (~100+), not a fraction of the
-        # run: compressed runs would end right after a reset. They run without resets (said in the JSON).
-        out["opacity_reset_every"] = 0
-    return out
+def variant_spec(name: str) -> dict:
+    """A variant, or several joined with "+" (their overrides merged; a random init if any asks for it)."""
+    parts = [VARIANTS[n] for n in name.split("+")]
+    init = "random" if any(p["init"] == "random" for p in parts) else "hull"
+    return {"init": init, "params": {k: v for p in parts for k, v in p["params"].items()}}
+
+
+def coarse_params(profile: str | None, iterations: int) -> dict:
+    """The coarse step's params from pipeline.yaml (with ``profile``), at the budget ``iterations``."""
+    from go_pipeline.pipeline import load_pipeline
+
+    return {**load_pipeline().resolve_params(profile=profile)["coarse"], "iterations": iterations}
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -73,11 +80,24 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 10.0 * math.log10(1.0 / max(mse, 1e-12))
 
 
+@functools.cache
+def _lpips_vgg():
+    """LPIPS-vgg (the paper's LPIPS; x100 = LPIPS*) from the cache, or None without weights."""
+    from go_core.errors import MissingWeightsError
+    from go_core.metrics import LPIPS
+
+    try:
+        return LPIPS.from_cache("vgg")
+    except MissingWeightsError:
+        return None
+
+
 def evaluate(g, scene) -> dict:
-    """Test-view PSNR/SSIM on white, plus where the error is: silhouette IoU (rendered alpha > 0.5 vs the
-    true mask) and the share of squared error on pixels outside the true silhouette."""
+    """Test-view PSNR/SSIM/LPIPS* on white, plus where the error is: silhouette IoU (rendered alpha > 0.5 vs
+    the true mask) and the share of squared error on pixels outside the true silhouette."""
     white = torch.ones(3)
-    ps, ss, ious, outside = [], [], [], []
+    lpips = _lpips_vgg()
+    ps, ss, lp, ious, outside = [], [], [], [], []
     with torch.no_grad():
         for v in scene.test:
             cam = v.camera
@@ -86,6 +106,9 @@ def evaluate(g, scene) -> dict:
             gt = torch.from_numpy(scene.composite(v, 1.0).astype(np.float32))
             ps.append(psnr(pred.numpy(), gt.numpy()))
             ss.append(float(ssim(pred, gt)))
+            if lpips is not None:
+                a, b = (t.permute(2, 0, 1)[None] * 2 - 1 for t in (pred, gt))
+                lp.append(100.0 * float(lpips(a, b)[0]))
             if v.mask is not None:
                 m = np.asarray(v.mask) > 0.5
                 a = out.alpha[0, ..., 0].numpy() > 0.5
@@ -97,6 +120,8 @@ def evaluate(g, scene) -> dict:
         "ssim": float(np.mean(ss)),
         "psnr_per_view": [round(p, 3) for p in ps],
     }
+    if lp:
+        res["lpips_star"] = float(np.mean(lp))
     if ious:
         res["silhouette_iou"] = round(float(np.mean(ious)), 4)
         res["error_share_outside_silhouette"] = round(float(np.mean(outside)), 4)
@@ -104,9 +129,15 @@ def evaluate(g, scene) -> dict:
 
 
 def run_variant(
-    scene, name: str, iterations: int, seed: int, extra: dict, random_points: int = 20_000
+    scene,
+    name: str,
+    iterations: int,
+    seed: int,
+    extra: dict,
+    random_points: int = 20_000,
+    profile: str | None = None,
 ) -> dict:
-    spec = VARIANTS[name]
+    spec = variant_spec(name)
     cams = scene.train_cameras
     masks = [v.mask for v in scene.train]
     images = [v.image for v in scene.train]
@@ -121,7 +152,7 @@ def run_variant(
         pts, cols = random_init(lo, hi, random_points, seed=seed)
     init = points_to_gaussians(pts, cols, opacity=0.1)
     t_init = time.process_time() - t0
-    params = {**scaled_params(iterations), **spec["params"], **extra}
+    params = {**coarse_params(profile, iterations), **spec["params"], **extra}
     config = config_from_params(params)
     views = [TrainView.from_arrays(v.camera, v.image, m) for v, m in zip(scene.train, masks, strict=True)]
     t1, w1 = time.process_time(), time.perf_counter()
@@ -139,6 +170,7 @@ def run_variant(
         "coarse_cpu_s": round(cpu, 2),
         "coarse_wall_s": round(wall, 2),
         "params": params,
+        "config": config.to_dict(),
     }
 
 
@@ -177,7 +209,13 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=DEV)
     ap.add_argument("--scenes", nargs="*", default=None)
     ap.add_argument("--iterations", type=int, default=PAPER_ITERS)
-    ap.add_argument("--variants", nargs="*", default=["hull", "random"], choices=sorted(VARIANTS))
+    ap.add_argument(
+        "--variants",
+        nargs="*",
+        default=["hull", "random"],
+        help=f"any of {sorted(VARIANTS)} or several joined by +",
+    )
+    ap.add_argument("--profile", default=None, help="pipeline.yaml profile the coarse params come from")
     ap.add_argument("--max-size", type=int, default=0, help="downscale images to this longest side (0: keep)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: leave)")
@@ -207,8 +245,10 @@ def main(argv=None) -> int:
         "benchmark": "coarse_dev",
         "iterations": args.iterations,
         "scaled_schedule": args.iterations != PAPER_ITERS,
+        "schedule_scaling": "go_core.training.scale_schedule",
         "max_size": args.max_size,
         "random_points": args.random_points,
+        "profile": args.profile or "default",
         "torch_threads": torch.get_num_threads(),
         "machine": platform.processor() or platform.machine(),
         "scenes": {},
@@ -218,10 +258,13 @@ def main(argv=None) -> int:
         scene = load_scene(args.data / name, max_size=args.max_size)
         result["scenes"][name] = {"resolution": [scene.train[0].camera.width, scene.train[0].camera.height]}
         for variant in args.variants:
-            r = run_variant(scene, variant, args.iterations, args.seed, extra, args.random_points)
+            r = run_variant(
+                scene, variant, args.iterations, args.seed, extra, args.random_points, args.profile
+            )
             result["scenes"][name][variant] = r
             print(
                 f"{name:14s} {variant:12s} PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  "
+                f"LPIPS* {r.get('lpips_star', float('nan')):5.2f}  "
                 f"N {r['gaussians']:6d}  cpu {r['coarse_cpu_s']:7.1f}s  wall {r['coarse_wall_s']:7.1f}s",
                 flush=True,
             )

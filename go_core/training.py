@@ -44,6 +44,7 @@ from go_core.floaters import FloaterConfig, floater_mask
 from go_core.gaussians import Gaussians
 from go_core.losses import depth_loss, photometric_terms
 from go_core.optim import GaussianOptimizer, LearningRates
+from go_core.regularizers import RegularizerConfig, drop_compensation, drop_rate, regularization_loss
 
 CHECKPOINT_FORMAT = 1
 
@@ -64,6 +65,7 @@ class CoarseConfig:
     lr: LearningRates = field(default_factory=LearningRates)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     floaters: FloaterConfig = field(default_factory=FloaterConfig)
+    regularize: RegularizerConfig = field(default_factory=RegularizerConfig)
     backend: str = "auto"
     log_every: int = 100
 
@@ -76,9 +78,10 @@ class CoarseConfig:
         lr = LearningRates(**d.pop("lr", {}))
         dens = DensifyConfig(**d.pop("densify", {}))
         flo = FloaterConfig(**d.pop("floaters", {}))
+        reg = RegularizerConfig(**d.pop("regularize", {}))
         if "background" in d:
             d["background"] = tuple(d["background"])
-        return CoarseConfig(lr=lr, densify=dens, floaters=flo, **d)
+        return CoarseConfig(lr=lr, densify=dens, floaters=flo, regularize=reg, **d)
 
     def fingerprint(self) -> str:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
@@ -162,10 +165,34 @@ def scene_extent(cameras: list[Camera]) -> float:
     return 1.1 * radius if radius > 0 else 1.0
 
 
-def _render(gaussians: Gaussians, cam: Camera, sh_degree: int, background: torch.Tensor, backend: str):
-    from go_core.render import render_camera
+def _render(
+    gaussians: Gaussians,
+    cam: Camera,
+    sh_degree: int,
+    background: torch.Tensor,
+    backend: str,
+    opacity_scale: torch.Tensor | None = None,
+):
+    """Render one training view; ``opacity_scale`` [N] multiplies the activated opacities (DropGaussian)."""
+    from go_core.render import render, render_camera
 
-    return render_camera(gaussians, cam, sh_degree=sh_degree, background=background, backend=backend)
+    if opacity_scale is None:
+        return render_camera(gaussians, cam, sh_degree=sh_degree, background=background, backend=backend)
+    g = gaussians
+    return render(
+        g.means,
+        g.quats,
+        g.scales(),
+        g.opacities() * opacity_scale,
+        g.sh,
+        cam.viewmat_tensor(device=g.means.device)[None],
+        cam.K_tensor(device=g.means.device)[None],
+        cam.width,
+        cam.height,
+        sh_degree=sh_degree,
+        background=background,
+        backend=backend,
+    )
 
 
 def view_loss(
@@ -316,9 +343,15 @@ def optimize(
             view = views[index]
             bg = torch.rand(3, generator=generator) if config.random_background else fixed_bg
             g = opt.gaussians()
-            out = _render(g, view.camera, active_sh, bg, config.backend)
+            rate = drop_rate(step, config.iterations, config.regularize.drop_gamma)
+            keep_scale = drop_compensation(len(g), rate, generator)
+            out = _render(g, view.camera, active_sh, bg, config.backend, keep_scale)
             strategy.pre_backward(step, out)
             loss, parts = view_loss(out, view, bg, config, step)
+            reg, reg_parts = regularization_loss(config.regularize, g, out.alpha[0, ..., 0], view.mask)
+            if reg is not None:
+                loss = loss + reg
+                parts.update(reg_parts)
             if extra_loss is not None:
                 extra = extra_loss(step, g, out, view, index)
                 if extra is not None:
@@ -395,6 +428,7 @@ __all__ = [
     "TrainView",
     "config_from_params",
     "optimize",
+    "scale_schedule",
     "scene_extent",
     "view_loss",
 ]
@@ -432,13 +466,63 @@ PARAM_MAP: dict[str, tuple[str | None, str]] = {
     "floater_from": ("floaters", "start_iter"),
     "floater_until": ("floaters", "stop_iter"),
     "floater_schedule": ("floaters", "schedule"),
+    "drop_gamma": ("regularize", "drop_gamma"),
+    "lambda_outside": ("regularize", "lambda_outside"),
+    "lambda_anisotropy": ("regularize", "lambda_anisotropy"),
+    "max_anisotropy": ("regularize", "max_anisotropy"),
+    "lambda_opacity": ("regularize", "lambda_opacity"),
 }
+
+# The budget knob: step-based schedule params are written for ``schedule_iterations`` (the paper's 10 000) and
+# scaled by iterations / schedule_iterations, so ``iterations`` alone sets the budget.
+SCHEDULE_PARAMS: tuple[str, ...] = (
+    "sh_increase_every",
+    "position_lr_max_steps",
+    "densify_from",
+    "densify_until",
+    "densify_every",
+    "opacity_reset_every",
+    "floater_every",
+    "floater_from",
+    "floater_until",
+)
+
+
+def _default_param(key: str):
+    """The ``CoarseConfig`` default of a flat param."""
+    sub, name = PARAM_MAP[key]
+    cfg = CoarseConfig()
+    return getattr(cfg if sub is None else getattr(cfg, sub), name)
+
+
+def scale_schedule(params: dict) -> dict:
+    """Flat coarse params with every step-based schedule (``SCHEDULE_PARAMS``) scaled by
+    ``iterations / schedule_iterations`` (rounded, intervals at least 1); unchanged when
+    ``schedule_iterations`` is 0 or absent, or equals ``iterations``.
+
+    Opacity resets whose scaled period falls below ``opacity_reset_min_interval`` are switched off:
+    recovering from a reset takes a fixed number of Adam steps (~100+), not a share of the run, so a short
+    run would end right after one."""
+    reference = int(params.get("schedule_iterations", 0) or 0)
+    iterations = int(params.get("iterations", CoarseConfig.iterations))
+    if reference <= 0 or reference == iterations:
+        return dict(params)
+    f = iterations / reference
+    out = {key: _default_param(key) for key in SCHEDULE_PARAMS} | dict(params)
+    for key in SCHEDULE_PARAMS:
+        if int(out[key]) > 0:
+            out[key] = max(1, int(round(int(out[key]) * f)))
+    min_reset = int(params.get("opacity_reset_min_interval", 0) or 0)
+    if int(out.get("opacity_reset_every", 0)) < min_reset:
+        out["opacity_reset_every"] = 0
+    return out
 
 
 def config_from_params(params: dict) -> CoarseConfig:
-    """A ``CoarseConfig`` from flat step params (unknown keys are ignored; the step handles its own)."""
+    """A ``CoarseConfig`` from flat step params (unknown keys are ignored; the step handles its own), with
+    the schedules scaled to the budget (:func:`scale_schedule`)."""
     cfg = CoarseConfig()
-    for key, value in params.items():
+    for key, value in scale_schedule(params).items():
         if key not in PARAM_MAP:
             continue
         sub, name = PARAM_MAP[key]

@@ -22,7 +22,9 @@ from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
 from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
 
-VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
+# 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam; 5: regularisers and
+# the budget knob (schedules scaled with iterations)
+VERSION = "5"
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
