@@ -64,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        return _closed_pipe()
     except Exception as e:  # noqa: BLE001 - the one place that turns errors into exit codes
         from go_core.errors import GoError
 
@@ -75,6 +77,17 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"error: {e}", file=sys.stderr)
         return int(getattr(e, "exit_code", 2))
+
+
+def _closed_pipe() -> int:
+    """The reader of our output went away (``... | head``): stop quietly, as a killed-by-SIGPIPE command
+    would (exit 141), without a traceback from the interpreter's final flush of stdout."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+    return 141
 
 
 if __name__ == "__main__":

@@ -23,6 +23,17 @@ class _ConsoleHandler(logging.Handler):
             self.handleError(record)
 
 
+class _HeldLines(logging.Handler):
+    """Keeps log records in memory until the log file is opened (see Display.open_log)."""
+
+    def __init__(self) -> None:
+        super().__init__(level=logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
 class Display:
     """Owns the run logger (file + console) and the progress bars of the step that is running."""
 
@@ -32,12 +43,12 @@ class Display:
         self.log = logging.getLogger(f"go_pipeline.run.{id(self)}")
         self.log.setLevel(logging.DEBUG)
         self.log.propagate = False
+        self.log_path = log_path
         self._file_handler: logging.Handler | None = None
-        if log_path is not None:
-            log_path.parent.mkdir(parents=True, exist_ok=True)
-            self._file_handler = logging.FileHandler(log_path, encoding="utf-8")
-            self._file_handler.setFormatter(logging.Formatter(LOG_FORMAT))
-            self.log.addHandler(self._file_handler)
+        self._held: _HeldLines | None = None
+        if log_path is not None:  # lines are held until open_log(): a run with nothing to do writes no log
+            self._held = _HeldLines()
+            self.log.addHandler(self._held)
         self._console = None
         self._progress = None
         self._tasks: dict[int, Any] = {}
@@ -45,6 +56,26 @@ class Display:
         if not quiet:
             self.log.addHandler(_ConsoleHandler(self))
         self.current_step = ""
+
+    # log file -------------------------------------------------------------------------------------------
+    def open_log(self) -> Path | None:
+        """Create the run's log file (once) and write the lines held so far into it; its path."""
+        if self._file_handler is None and self.log_path is not None:
+            self.log_path.parent.mkdir(parents=True, exist_ok=True)
+            self._file_handler = logging.FileHandler(self.log_path, encoding="utf-8")
+            self._file_handler.setFormatter(logging.Formatter(LOG_FORMAT))
+            if self._held is not None:
+                self.log.removeHandler(self._held)
+                for record in self._held.records:
+                    self._file_handler.handle(record)
+                self._held = None
+            self.log.addHandler(self._file_handler)
+        return self.log_path if self._file_handler is not None else None
+
+    @property
+    def log_file(self) -> Path | None:
+        """The run log's path once it exists (None while nothing was written to a file)."""
+        return self.log_path if self._file_handler is not None else None
 
     # console --------------------------------------------------------------------------------------
     @property

@@ -66,9 +66,14 @@ class Pipeline:
     def descendants(self, name: str) -> set[str]:
         return {s for s in self.steps if name in self.ancestors(s)}
 
-    def require_step(self, name: str, what: str) -> StepSpec:
+    def require_step(self, name: str, what: str, from_file: bool = True) -> StepSpec:
+        """The step called ``name``; else an error about ``what`` (a pipeline.yaml entry, or with
+        ``from_file=False`` a command-line argument, whose message then names no file)."""
         if name not in self.steps:
-            raise PipelineError(f"{what}: unknown step {name!r} (steps: {', '.join(self.steps)})", self.path)
+            raise PipelineError(
+                f"{what}: unknown step {name!r} (steps: {', '.join(self.steps)})",
+                self.path if from_file else None,
+            )
         return self.steps[name]
 
     def resolve_params(
@@ -83,24 +88,24 @@ class Pipeline:
         if profile is not None:
             if profile not in self.profiles:
                 known = ", ".join(self.profiles) or "none"
-                raise PipelineError(f"unknown profile {profile!r} (profiles: {known})", self.path)
+                raise PipelineError(f"--profile {profile}: unknown profile (profiles: {known})")
             for step, values in self.profiles[profile].items():
                 for param, value in values.items():
                     params[step][param] = value  # checked at load time
         for dotted, value in flatten_overrides(overrides or {}).items():
             what = f"--set {dotted}={_show(value)}"
             step, param = self._split_dotted(dotted, what)
-            params[step][param] = check_param_type(self.steps[step].params[param], value, what, self.path)
+            params[step][param] = check_param_type(self.steps[step].params[param], value, what, None)
         return {step: {k: expand_env(v) for k, v in values.items()} for step, values in params.items()}
 
     def _split_dotted(self, dotted: str, what: str) -> tuple[str, str]:
         step, sep, param = dotted.partition(".")
         if not sep or not step or not param:
-            raise PipelineError(f"{what}: expected STEP.PARAM=VALUE", self.path)
-        spec = self.require_step(step, what)
+            raise PipelineError(f"{what}: expected STEP.PARAM=VALUE")
+        spec = self.require_step(step, what, from_file=False)
         if param not in spec.params:
             known = ", ".join(spec.params) or "none"
-            raise PipelineError(f"{what}: step {step!r} has no param {param!r} (params: {known})", self.path)
+            raise PipelineError(f"{what}: step {step!r} has no param {param!r} (params: {known})")
         return step, param
 
 
@@ -129,7 +134,7 @@ def flatten_overrides(overrides: dict[str, Any]) -> dict[str, Any]:
     return flat
 
 
-def parse_set_argument(text: str, path: Path | str = "pipeline.yaml") -> tuple[str, Any]:
+def parse_set_argument(text: str, path: Path | str | None = None) -> tuple[str, Any]:
     """``step.param=value`` with the value parsed as YAML (so 3 is an int, 0.5 a float, [1, 2] a list)."""
     import yaml
 
@@ -166,7 +171,7 @@ def _type_name(value: Any) -> str:
     return type(value).__name__
 
 
-def check_param_type(default: Any, value: Any, what: str, path: Path | str) -> Any:
+def check_param_type(default: Any, value: Any, what: str, path: Path | str | None) -> Any:
     """``value`` converted to the default's type, or a PipelineError. An int is accepted for a float
     param (converted); a null default accepts anything; bool and int never mix."""
     if default is None:

@@ -49,7 +49,7 @@ class RunSummary:
     profile: str | None
     seed: int
     steps: list[StepResult]
-    log_path: Path
+    log_path: Path | None  # None when nothing ran (a no-op run writes no log)
     started: str
     finished: str
     wall_s: float
@@ -69,7 +69,7 @@ class RunSummary:
         d["scene_dir"], d["workdir"], d["log_path"] = (
             str(self.scene_dir),
             str(self.workdir),
-            str(self.log_path),
+            str(self.log_path) if self.log_path is not None else None,
         )
         for s in d["steps"]:
             s["artifact_dir"] = str(s["artifact_dir"])
@@ -179,23 +179,25 @@ def run_pipeline(
     """
     pipeline = load_pipeline(pipeline_path)
     if until is not None:
-        pipeline.require_step(until, "--until")
+        pipeline.require_step(until, "--until", from_file=False)
         wanted = pipeline.ancestors(until) | {until}
         selected = [n for n in pipeline.order if n in wanted]
     else:
         selected = pipeline.order
     force = set(force)
     for f in sorted(force):
-        pipeline.require_step(f, "--force")
+        pipeline.require_step(f, "--force", from_file=False)
     if device not in ("auto", "cpu", "cuda"):
-        raise PipelineError(f"--device must be auto, cpu or cuda, got {device!r}", pipeline.path)
+        raise PipelineError(f"--device must be auto, cpu or cuda, got {device!r}")
+    if device == "cuda":
+        require_cuda()
     plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline.path, selected)
     plan.pipeline = pipeline
 
-    from go_pipeline.display import Display
     from go_pipeline.lock import WorkdirLock
 
     started, t0 = _utc_now(), time.perf_counter()
+    created = not plan.workdir.exists()
     try:
         plan.workdir.mkdir(parents=True, exist_ok=True)
         probe = plan.workdir / ".write-test"
@@ -205,49 +207,101 @@ def run_pipeline(
         raise GoError(
             f"cannot write the work dir ({e.strerror or e}); choose one with --workdir", plan.workdir
         ) from None
-    with WorkdirLock(plan.workdir) as lock:
-        log_path = _new_log_path(plan.workdir)
-        display = Display(log_path, quiet=quiet, debug=debug)
-        try:
-            display.log.debug(
-                f"go-pipeline run {plan.scene_dir} workdir={plan.workdir} profile={profile} "
-                f"seed={seed} until={until} force={sorted(force)} pipeline={pipeline.path} "
-                f"python={sys.executable}"
-            )
-            store.sweep_leftovers(plan.workdir)
-            needs_scene = any(up == SCENE_INPUT for n in selected for up in pipeline.steps[n].inputs.values())
-            scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
-            done: dict[str, dict[str, Any]] = {}
-            results: list[StepResult] = []
-            for name in selected:
-                results.append(
-                    _run_one(
-                        plan, name, name in force, scene_hash, done, display, lock.fd, device, in_process
-                    )
+    options = {"device": device, "in_process": in_process, "quiet": quiet, "debug": debug}
+    try:
+        with WorkdirLock(plan.workdir) as lock:
+            return _run_locked(plan, selected, force, profile, until, options, lock.fd, started, t0)
+    except GoError as e:
+        # a first run refused by its input (not a step crash, whose traceback is in the log) leaves no
+        # .go/ behind in the scene folder
+        if created and not isinstance(e, StepFailed) and not _has_artifacts(plan.workdir):
+            shutil.rmtree(plan.workdir, ignore_errors=True)
+        raise
+
+
+def _has_artifacts(workdir: Path) -> bool:
+    root = workdir / "artifacts"
+    return root.is_dir() and any(store.complete_artifacts(workdir, p.name) for p in root.iterdir())
+
+
+def require_cuda() -> None:
+    """``--device cuda`` is an error (not a silent CPU run) when torch sees no CUDA device."""
+    import torch
+
+    if not torch.cuda.is_available():
+        why = "torch was built without CUDA" if torch.version.cuda is None else "no CUDA device is visible"
+        raise PipelineError(
+            f"--device cuda: CUDA is not available ({why}; torch {torch.__version__}); "
+            "use --device cpu or --device auto"
+        )
+
+
+def _run_locked(
+    plan: _Plan,
+    selected: list[str],
+    force: set[str],
+    profile: str | None,
+    until: str | None,
+    options: dict[str, Any],
+    lock_fd: int | None,
+    started: str,
+    t0: float,
+) -> RunSummary:
+    """The body of ``run_pipeline`` while the work dir's lock is held."""
+    from go_pipeline.display import Display
+
+    pipeline = plan.pipeline
+    display = Display(_new_log_path(plan.workdir), quiet=options["quiet"], debug=options["debug"])
+    try:
+        display.log.debug(
+            f"go-pipeline run {plan.scene_dir} workdir={plan.workdir} profile={profile} "
+            f"seed={plan.seed} until={until} force={sorted(force)} pipeline={pipeline.path} "
+            f"python={sys.executable}"
+        )
+        store.sweep_leftovers(plan.workdir)
+        needs_scene = any(up == SCENE_INPUT for n in selected for up in pipeline.steps[n].inputs.values())
+        scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
+        done: dict[str, dict[str, Any]] = {}
+        results: list[StepResult] = []
+        for name in selected:
+            results.append(
+                _run_one(
+                    plan,
+                    name,
+                    name in force,
+                    scene_hash,
+                    done,
+                    display,
+                    lock_fd,
+                    options["device"],
+                    options["in_process"],
                 )
-            summary = RunSummary(
-                plan.scene_dir,
-                plan.workdir,
-                profile,
-                plan.seed,
-                results,
-                log_path,
-                started,
-                _utc_now(),
-                time.perf_counter() - t0,
             )
-            _write_summary(plan.workdir, summary)
-            ran = len(summary.ran)
-            display.log.info(
-                f"done: {ran} step(s) ran, {len(results) - ran} cached "
-                f"({summary.wall_s:.1f} s); artifacts in {plan.workdir / 'artifacts'}"
-            )
-            return summary
-        except BaseException as e:
-            display.log.debug(f"run failed: {type(e).__name__}: {e}")  # the log file only
-            raise
-        finally:
-            display.close()
+        summary = RunSummary(
+            plan.scene_dir,
+            plan.workdir,
+            profile,
+            plan.seed,
+            results,
+            display.log_file,
+            started,
+            _utc_now(),
+            time.perf_counter() - t0,
+        )
+        _write_summary(plan.workdir, summary)
+        ran = len(summary.ran)
+        display.log.info(
+            f"done: {ran} step(s) ran, {len(results) - ran} cached ({summary.wall_s:.1f} s)"
+            if ran
+            else f"everything is up to date ({len(results)} steps cached, {summary.wall_s:.1f} s)"
+        )
+        return summary
+    except BaseException as e:
+        display.open_log()
+        display.log.debug(f"run failed: {type(e).__name__}: {e}")  # the log file only
+        raise
+    finally:
+        display.close()
 
 
 def _run_one(
@@ -278,6 +332,7 @@ def _run_one(
         display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
         return StepResult(name, status, key, final, True, 0.0, record)
 
+    display.open_log()
     display.log.info(f"  {name:<12} running  {key[:12]} ...")
     tmp = store.artifacts_root(plan.workdir, name) / f"{store.TMP_PREFIX}{key[:16]}-{os.getpid()}"
     if tmp.exists():
@@ -438,8 +493,9 @@ def _utc_now() -> str:
 
 
 def _new_log_path(workdir: Path) -> Path:
+    """The path of this run's log (created only when something is written; the oldest logs beyond
+    MAX_LOGS are deleted)."""
     logs = workdir / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
     old = sorted(logs.glob("run-*.log"))
     for p in old[: max(0, len(old) - MAX_LOGS + 1)]:
         p.unlink(missing_ok=True)

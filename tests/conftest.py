@@ -17,8 +17,10 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
+    """The larger data beside the checkout (``../shared/data``); tests needing it skip without it (a fresh
+    clone), saying so: CI and developers have it."""
     if not SHARED_DATA.is_dir():
-        pytest.fail(f"{SHARED_DATA} is missing: CI and developers have ../shared beside the checkout")
+        pytest.skip(f"needs the shared data set at {SHARED_DATA} (not part of a fresh clone)")
     return SHARED_DATA
 
 

@@ -30,31 +30,31 @@ def one_error_line(done) -> str:
 BAD_RUNS = [
     (
         ["--set", "train.iters=5"],
-        "{pipeline}: --set train.iters=5: step 'train' has no param 'iters' (params: iterations, sleep, "
+        "--set train.iters=5: step 'train' has no param 'iters' (params: iterations, sleep, "
         "checkpoint_every, fail_at, tags, extra)",
     ),
     (
         ["--set", "train.iterations=many"],
-        "{pipeline}: --set train.iterations='many': expected int (default 30), got str",
+        "--set train.iterations='many': expected int (default 30), got str",
     ),
     (
         ["--set", "train.iterations=2.5"],
-        "{pipeline}: --set train.iterations=2.5: expected int (default 30), got float",
+        "--set train.iterations=2.5: expected int (default 30), got float",
     ),
     (
         ["--set", "nope.x=1"],
-        "{pipeline}: --set nope.x=1: unknown step 'nope' (steps: ingest, double, side, train, report)",
+        "--set nope.x=1: unknown step 'nope' (steps: ingest, double, side, train, report)",
     ),
-    (["--set", "train.iterations"], "{pipeline}: --set train.iterations: expected STEP.PARAM=VALUE"),
+    (["--set", "train.iterations"], "--set train.iterations: expected STEP.PARAM=VALUE"),
     (
         ["--until", "nope"],
-        "{pipeline}: --until: unknown step 'nope' (steps: ingest, double, side, train, report)",
+        "--until: unknown step 'nope' (steps: ingest, double, side, train, report)",
     ),
     (
         ["--force", "nope"],
-        "{pipeline}: --force: unknown step 'nope' (steps: ingest, double, side, train, report)",
+        "--force: unknown step 'nope' (steps: ingest, double, side, train, report)",
     ),
-    (["--profile", "turbo"], "{pipeline}: unknown profile 'turbo' (profiles: quick, slow)"),
+    (["--profile", "turbo"], "--profile turbo: unknown profile (profiles: quick, slow)"),
 ]
 
 
@@ -154,15 +154,24 @@ def test_packaged_example_scene_and_attribution():
     )
 
 
-def test_validate_command(shared_data, tmp_path, toy):
-    done = toy.cli("validate", str(shared_data / "dev" / "milk"))
+def test_validate_command(tmp_path, toy):
+    """On the packaged example (no ../shared needed): what it holds; a missing image; no test split."""
+    done = toy.cli("validate", str(example_scene_path()))
     assert done.returncode == 0, done.stderr
     assert "OK" in done.stdout and "train views : 4" in done.stdout
+    assert "test views  : 8" in done.stdout and "transforms_train.json + transforms_test.json" in done.stdout
     broken = tmp_path / "broken"
-    shutil.copytree(shared_data / "dev" / "milk", broken)
+    shutil.copytree(example_scene_path(), broken)
     (broken / "train" / "r_0.png").unlink()
     done = toy.cli("validate", str(broken))
     assert done.returncode == 2 and "r_0" in done.stderr and "image not found" in done.stderr
+    no_test = tmp_path / "no_test"
+    shutil.copytree(example_scene_path(), no_test)
+    (no_test / "transforms_test.json").unlink()
+    done = toy.cli("validate", str(no_test))
+    assert done.returncode == 0, done.stderr
+    assert "test views  : none (no test split" in done.stdout
+    assert "split       : transforms_train.json\n" in done.stdout  # no test file named
 
 
 @pytest.mark.slow

@@ -20,11 +20,12 @@ def test_schema_is_valid_json_schema(name):
     assert schema["$id"] == f"go-pipeline/{name.replace('_', '-')}"
 
 
-def test_scene_manifest_schema_accepts_the_scene_artifact(shared_data):
+def test_scene_manifest_schema_accepts_the_scene_artifact():
     from go_core.scene.artifact import scene_manifest
     from go_core.scene.validate import validate_scene
+    from go_pipeline.resources import example_scene_path
 
-    report = validate_scene(shared_data / "dev" / "milk")
+    report = validate_scene(example_scene_path())
     assert report.ok, report.summary()
     manifest = scene_manifest(report.scene)
     assert schema_problems("scene_manifest", manifest) == []

@@ -21,7 +21,7 @@ from go_core.scene.common import (
     load_views,
     resize_view,
 )
-from go_core.scene.nerf import TRAIN_FILE, is_nerf_scene, read_nerf_specs
+from go_core.scene.nerf import TEST_FILE, TRAIN_FILE, is_nerf_scene, read_nerf_specs
 from go_core.scene.types import Scene
 
 
@@ -70,7 +70,7 @@ def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) 
         return None
     if fmt == "nerf":
         train_specs, test_specs = read_nerf_specs(root, problems)
-        source = "transforms_train.json + transforms_test.json"
+        source = TRAIN_FILE
         if views > 0:
             if views > len(train_specs):
                 problems.add(
@@ -81,7 +81,8 @@ def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) 
                 chosen = farthest_point_choice([s.camera for s in train_specs], views)
                 source = f"farthest-point choice of {views} of {len(train_specs)} in {TRAIN_FILE}"
                 train_specs = [train_specs[i] for i in chosen]
-                source += " + transforms_test.json"
+        if (root / TEST_FILE).is_file():
+            source += f" + {TEST_FILE}"
     else:
         train_specs, test_specs, source = read_colmap_specs(root, views, problems)
     _check_duplicates(train_specs, test_specs, problems)

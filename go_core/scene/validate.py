@@ -66,7 +66,9 @@ class ValidationReport:
         lines = [
             f"{self.path}: OK ({f['format']} scene)",
             f"  train views : {f['train_views']} ({', '.join(f['train_names'])})",
-            f"  test views  : {f['test_views']}",
+            f"  test views  : {f['test_views']}"
+            if f["test_views"]
+            else "  test views  : none (no test split: `eval` will fail; run with `--until turntable`)",
             f"  split       : {f['split_source']}",
             "  resolution  : " + ", ".join(f"{k} ({n} views)" for k, n in f["resolutions"].items()),
             "  intrinsics  : " + "; ".join(f"{k} ({n} views)" for k, n in f["intrinsics"].items()),

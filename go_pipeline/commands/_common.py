@@ -24,11 +24,9 @@ def add_pipeline_args(p: argparse.ArgumentParser, params: bool = True) -> None:
 
 def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
     from go_pipeline.pipeline import parse_set_argument
-    from go_pipeline.resources import default_pipeline_path
 
-    path = args.pipeline or default_pipeline_path()
     overrides: dict[str, Any] = {}
     for text in args.sets:
-        dotted, value = parse_set_argument(text, path)
+        dotted, value = parse_set_argument(text)
         overrides[dotted] = value
     return overrides

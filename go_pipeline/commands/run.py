@@ -91,6 +91,6 @@ def main(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         debug=args.debug,
     )
-    if not args.quiet:
+    if not args.quiet and summary.log_path is not None:
         print(f"log: {summary.log_path}", file=sys.stderr)
     return 0
