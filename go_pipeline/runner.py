@@ -12,7 +12,7 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -170,11 +170,14 @@ def run_pipeline(
     in_process: bool = False,
     quiet: bool = False,
     debug: bool = False,
+    on_start: Callable[[Path], None] | None = None,
 ) -> RunSummary:
     """Run every stale step (up to ``until``) for one scene and return what happened to each step.
 
     ``overrides``: {"step.param": value} or {step: {param: value}}, applied after ``profile``.
     ``force``: steps to rerun even when cached (their descendants rerun only if the output changes).
+    ``on_start(workdir)``: called once the work dir is locked, before any step (the CLI records the run's
+    settings there).
     Raises GoError subclasses (PipelineError, SceneError, LockedError, StepFailed, a step's own GoError).
     """
     pipeline = load_pipeline(pipeline_path)
@@ -207,7 +210,7 @@ def run_pipeline(
         raise GoError(
             f"cannot write the work dir ({e.strerror or e}); choose one with --workdir", plan.workdir
         ) from None
-    options = {"device": device, "in_process": in_process, "quiet": quiet, "debug": debug}
+    options = dict(device=device, in_process=in_process, quiet=quiet, debug=debug, on_start=on_start)
     try:
         with WorkdirLock(plan.workdir) as lock:
             return _run_locked(plan, selected, force, profile, until, options, lock.fd, started, t0)
@@ -259,6 +262,8 @@ def _run_locked(
             f"python={sys.executable}"
         )
         store.sweep_leftovers(plan.workdir)
+        if options["on_start"] is not None:
+            options["on_start"](plan.workdir)
         needs_scene = any(up == SCENE_INPUT for n in selected for up in pipeline.steps[n].inputs.values())
         scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
         done: dict[str, dict[str, Any]] = {}

@@ -19,7 +19,18 @@ def add_pipeline_args(p: argparse.ArgumentParser, params: bool = True) -> None:
             metavar="STEP.PARAM=VALUE",
             help="override a param (YAML value, type-checked); repeatable",
         )
-        p.add_argument("--seed", type=int, default=0, help="random seed, part of every cache key (default 0)")
+        p.add_argument(
+            "--seed",
+            type=int,
+            default=None,
+            help="random seed, part of every cache key (default: the work dir's last, else 0)",
+        )
+        p.add_argument(
+            "--reset-params",
+            action="store_true",
+            help="forget the work dir's remembered profile / --set / seed (params.yaml) and start from "
+            "pipeline.yaml's defaults",
+        )
 
 
 def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
@@ -30,3 +41,20 @@ def overrides_from(args: argparse.Namespace) -> dict[str, Any]:
         dotted, value = parse_set_argument(text)
         overrides[dotted] = value
     return overrides
+
+
+def settings_from(args: argparse.Namespace, workdir, default_profile: str | None = None):
+    """(remembered settings of the work dir or None, this invocation's settings): the remembered profile,
+    --set values and seed of ``workdir/params.yaml`` changed by the flags given (go_pipeline.workspace)."""
+    from go_pipeline.workspace import load_settings, merge
+
+    saved = load_settings(workdir)
+    settings = merge(
+        saved,
+        args.profile,
+        overrides_from(args),
+        args.seed,
+        reset=args.reset_params,
+        default_profile=default_profile,
+    )
+    return saved, settings

@@ -39,7 +39,7 @@ def main(args: argparse.Namespace) -> int:
         "profile": args.profile,
         "overrides": overrides_from(args),
         "until": args.until,
-        "seed": args.seed,
+        "seed": args.seed or 0,
         "pipeline_path": str(Path(args.pipeline).resolve()) if args.pipeline else None,
         "device": args.device,
     }

@@ -1,24 +1,38 @@
-"""`go-pipeline report SCENE --format json|md|html`: the run report of a scene's work dir."""
+"""`go-pipeline report SCENE [--format json|md|html] [-o OUT]`: the run report of a scene's work dir.
+
+The report refuses artifacts that come from different runs (a step made from another upstream artifact
+than the one shown, e.g. after `run --until` or `clean`), unless `--allow-mixed` (then it says so first).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
+
+FORMATS = {".json": "json", ".md": "md", ".html": "html", ".htm": "html"}
 
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("report", help="metrics, timings and images of a scene's run (json, md, html)")
     p.add_argument("scene", type=Path, help="scene folder")
-    p.add_argument("--format", choices=["json", "md", "html"], default="md")
+    p.add_argument("--format", choices=["json", "md", "html"], default=None, help="default: from -o, else md")
     p.add_argument(
+        "-o",
         "--out",
         type=Path,
         default=None,
-        help="json: file to write (default: print); md/html: folder (default WORKDIR/report)",
+        help="a file (report.html, report.md, report.json: the format follows the suffix) or a folder "
+        "(default: json printed, md/html in WORKDIR/report)",
     )
     p.add_argument("--workdir", metavar="W", help="where artifacts are (default: SCENE/.go)")
     p.add_argument("--pipeline", metavar="FILE", help="pipeline.yaml (for the step order)")
+    p.add_argument(
+        "--allow-mixed",
+        action="store_true",
+        help="report even when the artifacts come from different runs (with a warning at the top)",
+    )
     p.set_defaults(func=main)
 
 
@@ -30,20 +44,38 @@ def main(args: argparse.Namespace) -> int:
     wd = store.workdir_for(args.scene, args.workdir)
     if not (wd / "artifacts").is_dir():
         raise GoError("no artifacts yet: run `go-pipeline run` on this scene first", wd)
+    out: Path | None = args.out
+    as_file = out is not None and out.suffix.lower() in FORMATS
+    fmt = args.format or (FORMATS[out.suffix.lower()] if as_file else "md")
+    if as_file and FORMATS[out.suffix.lower()] != fmt:
+        raise GoError(f"-o {out}: the suffix says {FORMATS[out.suffix.lower()]}, --format says {fmt}")
     report = build_report(args.scene, args.workdir, args.pipeline)
-    if args.format == "json":
+    if report["warnings"]:
+        if not args.allow_mixed:
+            raise GoError(
+                "the artifacts come from different runs: "
+                + "; ".join(report["warnings"][:3])
+                + (f" (+{len(report['warnings']) - 3} more)" if len(report["warnings"]) > 3 else "")
+                + f"; run `go-pipeline run {args.scene}` to bring them up to date, or --allow-mixed",
+                wd,
+            )
+        for w in report["warnings"]:
+            print(f"WARNING: mixed runs: {w}", file=sys.stderr)
+    if fmt == "json":
         text = json.dumps(report, indent=2, sort_keys=True, allow_nan=False)
-        if args.out is None:
+        if out is None:
             print(text)
-        else:
-            from go_core.io.atomic import atomic_write_text
+            return 0
+        from go_core.io.atomic import atomic_write_text
 
-            atomic_write_text(args.out, text + "\n")
-            print(args.out)
+        path = atomic_write_text(out if as_file else out / "report.json", text + "\n")
+        print(path)
         return 0
     from go_pipeline.reporting.render import write_html, write_markdown
 
-    out_dir = args.out or (wd / "report")
-    path = (write_markdown if args.format == "md" else write_html)(report, Path(out_dir))
+    folder = (out.parent if as_file else out) if out is not None else wd / "report"
+    path = (write_markdown if fmt == "md" else write_html)(report, folder)
+    if as_file and path != out:
+        path = path.replace(out)
     print(path)
     return 0

@@ -7,7 +7,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from go_pipeline.commands._common import add_pipeline_args, overrides_from
+from go_pipeline.commands._common import add_pipeline_args
 
 EXAMPLE_PROFILE = "example"
 EXAMPLE_DIR = "go-example"
@@ -35,6 +35,12 @@ def add_parser(subparsers) -> None:
         "--in-process",
         action="store_true",
         help="run steps in this process (for debuggers) instead of one child process per step",
+    )
+    p.add_argument(
+        "--output",
+        metavar="DIR",
+        help="put the results (model.ply, turntable, metrics.json, report.html) here "
+        "(default: WORKDIR/outputs)",
     )
     p.add_argument("--quiet", action="store_true", help="print only errors")
     p.set_defaults(func=main)
@@ -65,32 +71,72 @@ def _example_scene(args: argparse.Namespace) -> tuple[Path, str | None]:
 
 def main(args: argparse.Namespace) -> int:
     from go_core.errors import GoError
+    from go_pipeline import store
+    from go_pipeline.commands._common import settings_from
+    from go_pipeline.pipeline import load_pipeline
     from go_pipeline.runner import run_pipeline
+    from go_pipeline.workspace import describe_changes, save_settings
 
     workdir = args.workdir
-    profile = args.profile
+    default_profile = None
     if args.example:
         scene, workdir = _example_scene(args)
-        profile = profile or EXAMPLE_PROFILE
-        print(f"example scene: {scene} (artifacts in {scene / '.go'})", file=sys.stderr)
+        default_profile = EXAMPLE_PROFILE
+        scene_arg = _shown(scene)
+        if not args.quiet:
+            print(f"example scene: {scene_arg} (artifacts in {_shown(scene / '.go')})", file=sys.stderr)
     elif not args.scene:
         raise GoError("missing SCENE (a scene folder), or use --example")
     else:
         scene = Path(args.scene)
+        scene_arg = args.scene
+    wd = store.workdir_for(scene, workdir)
+    saved, settings = settings_from(args, wd, default_profile)
+    pipeline = load_pipeline(args.pipeline)
+    changes = describe_changes(pipeline, saved, settings)  # also checks --set / --profile
+    if changes and not args.quiet:
+        print(f"settings changed since the last run ({_shown(wd / 'params.yaml')}):", file=sys.stderr)
+        for line in changes:
+            print(f"  {line}", file=sys.stderr)
     summary = run_pipeline(
         scene,
         workdir=workdir,
-        profile=profile,
-        overrides=overrides_from(args),
+        profile=settings.profile,
+        overrides=settings.sets,
         until=args.until,
         force=args.force,
-        seed=args.seed,
+        seed=settings.seed,
         pipeline_path=args.pipeline,
         device=args.device,
         in_process=args.in_process,
         quiet=args.quiet,
         debug=args.debug,
+        on_start=lambda w: save_settings(w, pipeline, settings),
     )
-    if not args.quiet and summary.log_path is not None:
-        print(f"log: {summary.log_path}", file=sys.stderr)
+    if args.until is not None:  # a partial run: the outputs keep showing the last complete one
+        if not args.quiet:
+            print(f"stopped after {args.until}; results not published (run without --until)", file=sys.stderr)
+        return 0
+    from go_pipeline.outputs import publish, result_lines
+
+    files = publish(
+        summary.scene_dir,
+        summary.workdir,
+        {s.name: s.key for s in summary.steps},
+        args.output,
+        args.pipeline,
+    )
+    if not args.quiet:
+        if summary.log_path is not None:
+            print(f"log: {_shown(summary.log_path)}", file=sys.stderr)
+        for line in result_lines(summary, files, scene_arg, settings.profile):
+            print(line)
     return 0
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the current folder when it lies below it (shorter, and what the user typed)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)

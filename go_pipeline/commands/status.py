@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from go_pipeline.commands._common import add_pipeline_args, overrides_from
+from go_pipeline.commands._common import add_pipeline_args, settings_from
 
 
 def add_parser(subparsers) -> None:
@@ -17,20 +17,21 @@ def add_parser(subparsers) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from go_pipeline import store
+    from go_pipeline.lock import WorkdirLock
     from go_pipeline.runner import pipeline_status
 
+    workdir = store.workdir_for(args.scene, args.workdir)
+    _, settings = settings_from(args, workdir)  # the work dir's remembered profile / --set / seed
     rows = pipeline_status(
         args.scene,
         workdir=args.workdir,
-        profile=args.profile,
-        overrides=overrides_from(args),
-        seed=args.seed,
+        profile=settings.profile,
+        overrides=settings.sets,
+        seed=settings.seed,
         pipeline_path=args.pipeline,
     )
-    from go_pipeline import store
-    from go_pipeline.lock import WorkdirLock
-
-    running = WorkdirLock(store.workdir_for(args.scene, args.workdir)).holder()
+    running = WorkdirLock(workdir).holder()
     if args.json:
         print(json.dumps([row.__dict__ for row in rows], indent=2))
         return 0

@@ -8,6 +8,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+GRID_CAPTION = "columns: the test views; rows: ground truth, render, error |render - GT|"
+
 
 def _fmt(v: Any, spec: str = ".3f") -> str:
     if v is None:
@@ -72,13 +74,128 @@ def plot_views(report: dict, path: Path) -> Path | None:
     return path
 
 
+ERROR_VMAX = 0.5  # go_core.metrics.evaluate.error_map's default saturation (mean absolute RGB error)
+ROW_LABELS = ("ground truth", "render", "|render - GT|")
+
+
+def grid_columns(n_views: int, grid_views: int) -> list[int]:
+    """The test views (indices) in the eval step's test_grid.png: evenly spread, as steps/eval.py picks."""
+    import numpy as np
+
+    if n_views <= 0:
+        return []
+    return [int(i) for i in np.unique(np.linspace(0, n_views - 1, min(n_views, grid_views)).round())]
+
+
+def plot_test_grid(report: dict, path: Path) -> Path | None:
+    """The eval step's test grid redrawn with its columns named (view, PSNR), its rows named and a colour
+    bar for the error row (magma, 0 to ERROR_VMAX mean absolute RGB error)."""
+    grid_file = report.get("images", {}).get("test_grid")
+    metrics = report.get("metrics")
+    if not grid_file or not Path(grid_file).is_file() or not metrics or not metrics["views"]:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from PIL import Image
+
+    grid = np.asarray(Image.open(grid_file).convert("RGB"))
+    eval_params = next((s["params"] for s in report["steps"] if s["name"] == "eval"), {})
+    cols = grid_columns(len(metrics["views"]), int(eval_params.get("grid_views", 8)))
+    if not cols:
+        return None
+    cell_w, cell_h = grid.shape[1] // len(cols), grid.shape[0] // 3
+    per_row = min(len(cols), 8)
+    bands = -(-len(cols) // per_row)
+    fig, axes = plt.subplots(
+        3 * bands, per_row, figsize=(1.6 * per_row + 1.2, 1.7 * 3 * bands + 0.3), dpi=100, squeeze=False
+    )
+    for ax in axes.flat:
+        ax.axis("off")
+    for j, view_index in enumerate(cols):
+        view = metrics["views"][view_index]
+        band, c = divmod(j, per_row)
+        for r in range(3):
+            ax = axes[3 * band + r, c]
+            ax.imshow(grid[r * cell_h : (r + 1) * cell_h, j * cell_w : j * cell_w + cell_w - 2])
+            if r == 0:
+                psnr = "n/a" if view["psnr"] is None else f"{view['psnr']:.1f} dB"
+                ax.set_title(f"{view['name']}\n{psnr}", fontsize=8)
+            if c == 0:
+                ax.axis("on")
+                ax.set_xticks([])
+                ax.set_yticks([])
+                ax.set_ylabel(ROW_LABELS[r], fontsize=8)
+    bar = fig.colorbar(
+        ScalarMappable(Normalize(0.0, ERROR_VMAX), colormaps["magma"]),
+        ax=axes[2::3, :].ravel().tolist(),
+        fraction=0.03,
+        pad=0.02,
+    )
+    bar.set_label("mean |RGB error|", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_curves(report: dict, path: Path) -> Path | None:
+    """Training curves (coarse, repair): loss, PSNR on the training views and Gaussian count over
+    iterations, from the steps' curves.csv."""
+    import csv
+
+    found = {
+        step: report.get("files", {}).get(f"curves_{step}")
+        for step in ("coarse", "repair")
+        if report.get("files", {}).get(f"curves_{step}")
+    }
+    if not found:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = ("loss", "train_psnr", "gaussians")
+    labels = {"loss": "loss", "train_psnr": "PSNR on training views (dB)", "gaussians": "Gaussians"}
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.2), dpi=100)
+    for step, csv_path in found.items():
+        with open(csv_path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
+            continue
+        its = [int(r["iteration"]) for r in rows]
+        for ax, key in zip(axes, series, strict=True):
+            vals = [float(r[key]) if r.get(key) not in (None, "") else float("nan") for r in rows]
+            ax.plot(its, vals, label=step)
+    for ax, key in zip(axes, series, strict=True):
+        ax.set_xlabel("iteration")
+        ax.set_title(labels[key], fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
 def _assets(report: dict, out_dir: Path) -> dict[str, str]:
     out_dir.mkdir(parents=True, exist_ok=True)
     assets: dict[str, str] = {}
-    grid = report.get("images", {}).get("test_grid")
-    if grid and Path(grid).is_file():
-        shutil.copyfile(grid, out_dir / "test_grid.png")
+    if plot_test_grid(report, out_dir / "test_grid.png"):
         assets["grid"] = "test_grid.png"
+    turntable = report.get("images", {}).get("turntable")
+    if turntable and Path(turntable).is_file():
+        shutil.copyfile(turntable, out_dir / "turntable.gif")
+        assets["turntable"] = "turntable.gif"
+    if plot_curves(report, out_dir / "curves.png"):
+        assets["curves"] = "curves.png"
     if plot_steps(report, out_dir / "steps.png"):
         assets["steps"] = "steps.png"
     if plot_views(report, out_dir / "views.png"):
@@ -138,6 +255,14 @@ def _summary_lines(report: dict) -> list[str]:
                 lines.append(f"LPIPS-{net} {status}")
     else:
         lines.append("no evaluation yet (the eval step has not run)")
+    ply = report.get("outputs", {}).get("model.ply") or report.get("files", {}).get("model_ply")
+    if ply:
+        lines.append(f"model (.ply): {ply}")
+    settings = report.get("settings")
+    if settings:
+        sets = ", ".join(f"{k}={v}" for k, v in settings.get("set", {}).items()) or "none"
+        profile = settings.get("profile") or "(none)"
+        lines.append(f"settings: profile {profile}, seed {settings.get('seed')}, --set {sets}")
     libs = report["versions"]["libraries"]
     if libs:
         lines.append("versions: " + ", ".join(f"{k} {v}" for k, v in sorted(libs.items())))
@@ -155,13 +280,13 @@ def write_markdown(report: dict, out_dir: Path) -> Path:
 
     lines = [f"# Run report: {report['scene']['name']}", "", f"Generated {report['generated']}.", ""]
     lines += [f"- {x}" for x in _summary_lines(report)] + [""]
+    lines += [f"> **WARNING:** {w}" for w in report.get("warnings", [])] + [""] * bool(report.get("warnings"))
     if "grid" in assets:
-        lines += [
-            "## Test views (rows: ground truth, render, error map)",
-            "",
-            f"![test views]({assets['grid']})",
-            "",
-        ]
+        lines += ["## Test views", "", GRID_CAPTION, "", f"![test views]({assets['grid']})", ""]
+    if "turntable" in assets:
+        lines += ["## Turntable", "", f"![turntable]({assets['turntable']})", ""]
+    if "curves" in assets:
+        lines += ["## Training curves", "", f"![training curves]({assets['curves']})", ""]
     if vr:
         lines += ["## Metrics per test view", ""] + table(vh, vr) + [""]
         if "views" in assets:
@@ -174,8 +299,20 @@ def write_markdown(report: dict, out_dir: Path) -> Path:
     return path
 
 
-def write_html(report: dict, out_dir: Path) -> Path:
-    assets = _assets(report, out_dir)
+def _data_uri(path: Path) -> str:
+    import base64
+
+    kind = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg"}.get(path.suffix, "image/png")
+    return f"data:{kind};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def html_report(report: dict) -> str:
+    """The report as one self-contained HTML page (images embedded), for outputs/report.html."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="go-report-") as tmp:
+        assets = _assets(report, Path(tmp))
+        uris = {k: _data_uri(Path(tmp) / v) for k, v in assets.items()}
     sh, sr, vh, vr = _tables(report)
     e = html.escape
 
@@ -189,23 +326,34 @@ def write_html(report: dict, out_dir: Path) -> Path:
         f"<title>Run report: {e(report['scene']['name'])}</title>",
         "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse}"
         "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}td:first-child{text-align:left}"
-        "img{max-width:100%}</style></head><body>",
-        f"<h1>Run report: {e(report['scene']['name'])}</h1><p>Generated {e(report['generated'])}.</p><ul>",
+        "img{max-width:100%}.warn{background:#fdd;border:2px solid #c00;padding:.5em 1em}</style>"
+        "</head><body>",
+        f"<h1>Run report: {e(report['scene']['name'])}</h1><p>Generated {e(report['generated'])}.</p>",
+        *[f"<p class='warn'>{e(w)}</p>" for w in report.get("warnings", [])],
+        "<ul>",
         *[f"<li>{e(x)}</li>" for x in _summary_lines(report)],
         "</ul>",
     ]
-    if "grid" in assets:
-        parts.append(
-            f"<h2>Test views (rows: ground truth, render, error map)</h2><img src='{assets['grid']}'>"
-        )
+    for title, key in (("Test views", "grid"), ("Turntable", "turntable")):
+        if key in uris:
+            caption = GRID_CAPTION if key == "grid" else ""
+            parts.append(f"<h2>{title}</h2><p>{e(caption)}</p><img src='{uris[key]}'>")
+    if "curves" in uris:
+        parts.append(f"<h2>Training curves</h2><img src='{uris['curves']}'>")
     if vr:
         parts.append("<h2>Metrics per test view</h2>" + table(vh, vr))
-        if "views" in assets:
-            parts.append(f"<p><img src='{assets['views']}'></p>")
+        if "views" in uris:
+            parts.append(f"<p><img src='{uris['views']}'></p>")
     parts.append("<h2>Steps</h2>" + table(sh, sr))
-    if "steps" in assets:
-        parts.append(f"<p><img src='{assets['steps']}'></p>")
+    if "steps" in uris:
+        parts.append(f"<p><img src='{uris['steps']}'></p>")
     parts.append("</body></html>")
-    path = out_dir / "report.html"
-    path.write_text("\n".join(parts) + "\n", encoding="utf-8")
-    return path
+    return "\n".join(parts) + "\n"
+
+
+def write_html(report: dict, out_dir: Path) -> Path:
+    """``out_dir/report.html``, self-contained."""
+    from go_core.io.atomic import atomic_write_text
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return atomic_write_text(out_dir / "report.html", html_report(report))

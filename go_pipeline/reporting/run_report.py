@@ -126,6 +126,16 @@ def build_report(
     images = {}
     if metrics_dir is not None and (metrics_dir / "test_grid.png").is_file():
         images["test_grid"] = str(metrics_dir / "test_grid.png")
+    files = {}
+    for label, step, name in (
+        ("turntable", "turntable", "turntable.gif"),
+        ("curves_coarse", "coarse", "curves.csv"),
+        ("curves_repair", "repair", "curves.csv"),
+        ("model_ply", "export", "point_cloud.ply"),
+    ):
+        found = store.artifact_dir(wd, step) if step in manifests else None
+        if found is not None and (found / name).is_file():
+            (images if label == "turntable" else files)[label] = str(found / name)
     return {
         "schema": REPORT_SCHEMA_ID,
         "version": REPORT_VERSION,
@@ -146,7 +156,42 @@ def build_report(
         "result": _result(manifests, metrics),
         "metrics": _metrics_block(metrics),
         "images": images,
+        "files": files,
+        "warnings": mixed_run_problems(manifests),
+        "settings": _settings(wd),
     }
+
+
+def _settings(workdir: Path) -> dict[str, Any] | None:
+    """The work dir's remembered profile / --set / seed (params.yaml), or None."""
+    from go_pipeline.workspace import load_settings
+
+    try:
+        saved = load_settings(workdir)
+    except Exception:  # noqa: BLE001 - a damaged params.yaml must not hide the report
+        return None
+    return saved.to_dict() if saved is not None else None
+
+
+def mixed_run_problems(manifests: dict[str, dict]) -> list[str]:
+    """Why these artifacts do not belong to one run: a step's manifest names an upstream artifact (key)
+    other than the upstream artifact the report shows, or one that is gone. Empty when consistent."""
+    problems = []
+    for step, m in manifests.items():
+        for _, inp in sorted((m.get("inputs") or {}).items()):
+            up = inp.get("step")
+            if not up:
+                continue
+            if up not in manifests:
+                problems.append(
+                    f"{step} was made from a {up} artifact that is gone ({str(inp.get('key'))[:12]})"
+                )
+            elif manifests[up].get("key") != inp.get("key"):
+                problems.append(
+                    f"{step} was made from another {up} artifact ({str(inp.get('key'))[:12]}) than the "
+                    f"{up} shown here ({str(manifests[up].get('key'))[:12]})"
+                )
+    return problems
 
 
 def _metrics_block(metrics: dict | None) -> dict[str, Any] | None:

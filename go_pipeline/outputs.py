@@ -1,0 +1,145 @@
+"""Findable results: ``SCENE/.go/outputs/`` (or ``run --output DIR``) holds the current run's results under
+stable names, each written atomically (a temp file renamed into place):
+
+```
+model.ply        the final model (export step), INRIA layout
+turntable.gif    the turntable (turntable step); turntable.mp4 / camera_path.mp4 when the step made them
+metrics.json     PSNR / SSIM / LPIPS per test view and mean (eval step)
+report.html      the run report, one self-contained file
+index.json       which step artifact (key) each file came from
+```
+A run whose artifacts did not change since the last publication rewrites nothing (a no-op run stays fast).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+from go_pipeline import store
+
+OUTPUTS_DIR = "outputs"
+INDEX = "index.json"
+# stable name -> (step, file in the step's artifact); optional ones are published when the step wrote them
+COPIED = {
+    "model.ply": ("export", "point_cloud.ply"),
+    "turntable.gif": ("turntable", "turntable.gif"),
+    "turntable.mp4": ("turntable", "turntable.mp4"),
+    "camera_path.mp4": ("turntable", "camera_path.mp4"),
+    "metrics.json": ("eval", "metrics.json"),
+}
+
+
+def outputs_dir(workdir: Path, output: str | Path | None = None) -> Path:
+    return Path(output).resolve() if output is not None else Path(workdir) / OUTPUTS_DIR
+
+
+def _copy_atomic(src: Path, dst: Path) -> None:
+    tmp = dst.with_name(f".{dst.name}.tmp-{os.getpid()}")
+    shutil.copyfile(src, tmp)
+    os.replace(tmp, dst)
+    readable(dst)
+
+
+def readable(path: Path) -> Path:
+    """Give a published file the permissions a new file gets (temp files are private, 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
+    return path
+
+
+def _read_index(out: Path) -> dict[str, Any]:
+    try:
+        return json.loads((out / INDEX).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def publish(
+    scene_dir: Path,
+    workdir: Path,
+    keys: dict[str, str],
+    output: str | Path | None = None,
+    pipeline_path: str | Path | None = None,
+) -> dict[str, Path]:
+    """Copy the current results to the outputs folder under stable names and write the report there.
+
+    ``keys``: step -> key of the artifact this run used (RunSummary). Returns stable name -> path of what
+    the folder holds now."""
+    out = outputs_dir(workdir, output)
+    index = _read_index(out)
+    wanted = {
+        name: store.artifact_path(workdir, step, keys[step]) / file
+        for name, (step, file) in COPIED.items()
+        if step in keys and (store.artifact_path(workdir, step, keys[step]) / file).is_file()
+    }
+    names = [*wanted, "report.html"]
+    if index.get("keys") == keys and all((out / n).is_file() for n in names):
+        return {n: out / n for n in names}  # nothing changed since the last publication
+    out.mkdir(parents=True, exist_ok=True)
+    for name, src in wanted.items():
+        _copy_atomic(src, out / name)
+    for stale in set(COPIED) - set(wanted):  # e.g. a run --until eval leaves no stale model behind
+        (out / stale).unlink(missing_ok=True)
+    from go_core.io.atomic import atomic_write_json, atomic_write_text
+    from go_pipeline.reporting.render import html_report
+    from go_pipeline.reporting.run_report import build_report
+
+    report = build_report(scene_dir, workdir, pipeline_path)
+    report["outputs"] = {n: str(out / n) for n in names}
+    readable(atomic_write_text(out / "report.html", html_report(report)))
+    index = {"scene": str(scene_dir), "keys": keys, "files": {n: str(p) for n, p in wanted.items()}}
+    readable(atomic_write_json(out / INDEX, index))
+    return {n: out / n for n in names}
+
+
+def result_lines(
+    summary, files: dict[str, Path], scene_arg: str, profile: str | None, cwd: Path | None = None
+) -> list[str]:
+    """What the end of a run prints: the model used and its metrics, where the results are, and the next
+    command to try."""
+    cwd = Path.cwd() if cwd is None else cwd
+
+    def show(p: Path) -> str:
+        try:
+            return str(p.relative_to(cwd))
+        except ValueError:
+            return str(p)
+
+    lines: list[str] = []
+    metrics = None
+    if "metrics.json" in files:
+        metrics = json.loads(files["metrics.json"].read_text())
+    if metrics is not None:
+        mean = metrics.get("mean", {})
+        model = metrics.get("model", "?")
+        why = metrics.get("model_reason", "")
+        lines.append(f"result: the {model} model" + (f" ({_short(why)})" if why else ""))
+
+        def fmt(k: str, spec: str, unit: str = "") -> str:
+            v = mean.get(k)
+            return "n/a" if v is None else f"{format(v, spec)}{unit}"
+
+        lines.append(
+            f"  {len(metrics.get('views', []))} test views: PSNR {fmt('psnr', '.2f', ' dB')}, "
+            f"SSIM {fmt('ssim', '.4f')}, LPIPS* {fmt('lpips_star', '.2f')}"
+        )
+    width = max((len(n) for n in files), default=0)
+    for name in ("model.ply", "turntable.gif", "turntable.mp4", "camera_path.mp4", "report.html"):
+        if name in files:
+            lines.append(f"  {name:<{width}}  {show(files[name])}")
+    if profile in ("example", "test"):
+        nxt = f"go-pipeline run {scene_arg} --profile paper   # the paper's full-length settings"
+    else:
+        nxt = f"go-pipeline runs {scene_arg}   # compare this run with the earlier ones"
+    lines.append(f"next: open {show(files['report.html'])} in a browser, or {nxt}")
+    return lines
+
+
+def _short(text: str, n: int = 90) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
