@@ -58,6 +58,7 @@ class StepProgress:
         self.id = bar_id
         self.sink = sink
         self._pending = 0
+        self._fields: dict[str, Any] = {}
         self._last = 0.0
         self._closed = False
         sink.send(
@@ -71,15 +72,22 @@ class StepProgress:
             }
         )
 
-    def advance(self, n: int = 1) -> None:
+    def advance(self, n: int = 1, **fields: Any) -> None:
+        """``n`` more done; ``fields`` (latest values, e.g. loss, gaussians) travel with the next event."""
         self._pending += n
+        if fields:
+            self._fields.update(fields)
         now = time.monotonic()
         if now - self._last >= 0.1:
             self._flush(now)
 
     def _flush(self, now: float) -> None:
-        if self._pending:
-            self.sink.send({"type": "progress", "op": "advance", "id": self.id, "n": self._pending})
+        if self._pending or self._fields:
+            event = {"type": "progress", "op": "advance", "id": self.id, "n": self._pending}
+            if self._fields:
+                event["fields"] = self._fields
+                self._fields = {}
+            self.sink.send(event)
             self._pending = 0
         self._last = now
 

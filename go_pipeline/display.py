@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +23,53 @@ class _ConsoleHandler(logging.Handler):
             self.display.print(record.getMessage())
         except Exception:  # noqa: BLE001
             self.handleError(record)
+
+
+PROGRESS_LINE_EVERY_S = 10.0  # without a terminal: one progress line this often (stdout and the log)
+
+
+@dataclass
+class _Bar:
+    """One progress bar's state: counts, when it started, the latest fields (loss, gaussians, ...)."""
+
+    description: str
+    total: int
+    done: int
+    fields: dict[str, Any] = field(default_factory=dict)
+    started: float = field(default_factory=time.monotonic)
+    last_line: float = field(default_factory=time.monotonic)
+
+    def __post_init__(self) -> None:
+        self.first = self.done
+
+    def info(self) -> str:
+        parts = []
+        for k, v in self.fields.items():
+            if k == "loss" and isinstance(v, (int, float)):
+                parts.append(f"loss {v:.4g}")
+            elif k == "gaussians" and isinstance(v, (int, float)):
+                parts.append(f"{int(v):,} Gaussians")
+            elif k == "psnr" and isinstance(v, (int, float)):
+                parts.append(f"PSNR {v:.2f}")
+            else:
+                parts.append(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}")
+        return ", ".join(parts)
+
+    def line(self) -> str:
+        elapsed = time.monotonic() - self.started
+        pct = f" ({100 * self.done / self.total:.0f}%)" if self.total > 0 else ""
+        text = f"{self.description} {self.done}/{self.total}{pct}, {_clock(elapsed)} elapsed"
+        rate = (self.done - self.first) / elapsed if elapsed > 0 else 0.0
+        if rate > 0 and self.total > self.done:
+            text += f", ETA {_clock((self.total - self.done) / rate)}"
+        info = self.info()
+        return text + (f", {info}" if info else "")
+
+
+def _clock(seconds: float) -> str:
+    m, s = divmod(int(round(seconds)), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
 
 
 class _HeldLines(logging.Handler):
@@ -52,7 +101,7 @@ class Display:
         self._console = None
         self._progress = None
         self._tasks: dict[int, Any] = {}
-        self._totals: dict[int, tuple[int, int, str]] = {}
+        self._totals: dict[int, _Bar] = {}
         if not quiet:
             self.log.addHandler(_ConsoleHandler(self))
         self.current_step = ""
@@ -111,7 +160,9 @@ class Display:
                 BarColumn(),
                 MofNCompleteColumn(),
                 TimeElapsedColumn(),
+                TextColumn("ETA"),
                 TimeRemainingColumn(),
+                TextColumn("{task.fields[info]}"),
                 console=self.console,
                 transient=True,
             )
@@ -133,22 +184,39 @@ class Display:
         bars = self._bars()
         if op == "start":
             desc = f"{self.current_step}: {event.get('description') or ''}".rstrip(": ")
-            self._totals[pid] = (int(event["completed"]), int(event["total"]), desc)
-            self.log.debug(
-                f"[{self.current_step}] progress start {desc} {event['completed']}/{event['total']}"
-            )
+            bar = _Bar(desc, int(event["total"]), int(event["completed"]))
+            self._totals[pid] = bar
+            self._to_file(f"[{self.current_step}] {bar.line()}")
             if bars is not None:
-                self._tasks[pid] = bars.add_task(desc, total=event["total"], completed=event["completed"])
+                self._tasks[pid] = bars.add_task(desc, total=bar.total, completed=bar.done, info="")
         elif op == "advance":
-            done, total, desc = self._totals.get(pid, (0, 0, ""))
-            self._totals[pid] = (done + int(event["n"]), total, desc)
+            bar = self._totals.get(pid)
+            if bar is None:
+                return
+            bar.done += int(event.get("n", 0))
+            bar.fields.update(event.get("fields") or {})
             if bars is not None and pid in self._tasks:
-                bars.advance(self._tasks[pid], int(event["n"]))
+                bars.update(self._tasks[pid], advance=int(event.get("n", 0)), info=bar.info())
+            now = time.monotonic()
+            if now - bar.last_line >= PROGRESS_LINE_EVERY_S:
+                bar.last_line = now
+                line = f"[{self.current_step}] {bar.line()}"
+                self._to_file(line)
+                if bars is None and not self.quiet:
+                    print(f"  {line}", file=sys.stdout, flush=True)  # no terminal: a line every ~10 s
         elif op == "close":
-            done, total, desc = self._totals.pop(pid, (0, 0, ""))
-            self.log.debug(f"[{self.current_step}] progress end {desc} {done}/{total}")
+            bar = self._totals.pop(pid, None)
+            if bar is not None:
+                self._to_file(f"[{self.current_step}] {bar.line()} (end)")
             if bars is not None and pid in self._tasks:
                 bars.remove_task(self._tasks.pop(pid))
+
+    def _to_file(self, text: str) -> None:
+        """A line for the run log only (not the console)."""
+        record = self.log.makeRecord(self.log.name, logging.INFO, __file__, 0, text, None, None)
+        for handler in self.log.handlers:
+            if not isinstance(handler, _ConsoleHandler):
+                handler.handle(record)
 
     def end_step(self) -> None:
         """Drop any bars the step left open."""

@@ -53,6 +53,7 @@ class RunSummary:
     started: str
     finished: str
     wall_s: float
+    overrides: dict[str, Any] = field(default_factory=dict)  # the --set values ({"step.param": value})
 
     def step(self, name: str) -> StepResult:
         for s in self.steps:
@@ -211,6 +212,9 @@ def run_pipeline(
             f"cannot write the work dir ({e.strerror or e}); choose one with --workdir", plan.workdir
         ) from None
     options = dict(device=device, in_process=in_process, quiet=quiet, debug=debug, on_start=on_start)
+    from go_pipeline.pipeline import flatten_overrides
+
+    options["overrides"] = flatten_overrides(overrides or {})
     try:
         with WorkdirLock(plan.workdir) as lock:
             return _run_locked(plan, selected, force, profile, until, options, lock.fd, started, t0)
@@ -292,6 +296,7 @@ def _run_locked(
             started,
             _utc_now(),
             time.perf_counter() - t0,
+            dict(options.get("overrides") or {}),
         )
         _write_summary(plan.workdir, summary)
         ran = len(summary.ran)
@@ -337,8 +342,12 @@ def _run_one(
         display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
         return StepResult(name, status, key, final, True, 0.0, record)
 
+    from go_pipeline.skipping import cascade_skip, write_skipped_outputs
+
     display.open_log()
-    display.log.info(f"  {name:<12} running  {key[:12]} ...")
+    skip = cascade_skip(_module_file(spec), spec.inputs, done)
+    if skip is None:
+        display.log.info(f"  {name:<12} running  {key[:12]} ...")
     tmp = store.artifacts_root(plan.workdir, name) / f"{store.TMP_PREFIX}{key[:16]}-{os.getpid()}"
     if tmp.exists():
         shutil.rmtree(tmp)
@@ -364,12 +373,16 @@ def _run_one(
         "sys_path": [p for p in sys.path if p],
     }
     started = _utc_now()
-    from go_pipeline.executor import execute
+    from go_pipeline.executor import Execution, execute
 
     try:
-        result = execute(
-            job, display, in_process=in_process, keep_fds=(lock_fd,) if lock_fd is not None else ()
-        )
+        if skip is not None:  # nothing to do: no worker process (see go_pipeline/skipping.py)
+            write_skipped_outputs(tmp, spec.outputs, skip, _module_file(spec))
+            result = Execution(True, 0.0, 0.0, 0.0, "cpu", dict(skip))
+        else:
+            result = execute(
+                job, display, in_process=in_process, keep_fds=(lock_fd,) if lock_fd is not None else ()
+            )
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -431,10 +444,13 @@ def _run_one(
     status = "skipped" if result.records.get("status") == "skipped" else "ran"
     reason = str(result.records.get("reason") or "") if status == "skipped" else ""
     extra = f" ({reason[:77] + '...' if len(reason) > 80 else reason})" if reason else ""
-    display.log.info(
-        f"  {name:<12} {status:<8} {key[:12]} {result.wall_s:7.1f} s  cpu {result.cpu_s:6.1f} s  "
-        f"peak {result.peak_mem_mb:7.0f} MiB{extra}"
-    )
+    if skip is not None:
+        display.log.info(f"  {name:<12} skipped  {key[:12]} {'(no worker)':>34}{extra}")
+    else:
+        display.log.info(
+            f"  {name:<12} {status:<8} {key[:12]} {result.wall_s:7.1f} s  cpu {result.cpu_s:6.1f} s  "
+            f"peak {result.peak_mem_mb:7.0f} MiB{extra}"
+        )
     return StepResult(name, status, key, final, False, result.wall_s, result.records)
 
 
@@ -512,6 +528,9 @@ def _write_summary(workdir: Path, summary: RunSummary) -> None:
     from go_core.io.atomic import atomic_write_json
 
     atomic_write_json(workdir / "runs" / "last.json", summary.to_dict())
+    if summary.ran:  # the run history (`go-pipeline runs`): one file per run that did something
+        stamp = summary.started.replace(":", "").replace("-", "")
+        atomic_write_json(workdir / "runs" / f"run-{stamp}.json", summary.to_dict())
 
 
 # ---------------------------------------------------------------------------------------------- status

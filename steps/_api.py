@@ -26,7 +26,9 @@ from typing import Any, Protocol
 
 
 class Progress(Protocol):
-    def advance(self, n: int = 1) -> None: ...
+    def advance(self, n: int = 1, **fields: float | int | str) -> None:
+        """``n`` more done; ``fields`` (e.g. ``loss=0.05, gaussians=26000``) are shown with the bar."""
+        ...
 
     def close(self) -> None: ...
 

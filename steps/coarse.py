@@ -46,7 +46,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     def progress(step: int, info: dict) -> None:
         if state["bar"] is None:
             state["bar"] = ctx.progress(config.iterations, "coarse 3DGS", completed=step - 1)
-        state["bar"].advance()
+        state["bar"].advance(1, loss=info["loss"], gaussians=info["n"])
 
     spec = CheckpointSpec(Path(ctx.checkpoint_dir), every=int(params.get("checkpoint_every", 500)))
     gaussians, stats = optimize(

@@ -84,14 +84,19 @@ def grid_image(
     return np.concatenate(cols, axis=1)
 
 
-def evaluate_scene(scene, renders: list[np.ndarray], suite: MetricSuite, masked: bool) -> list[dict]:
-    """Per-view metric dicts for the scene's test views against ``renders`` (same order)."""
+def evaluate_scene(
+    scene, renders: list[np.ndarray], suite: MetricSuite, masked: bool, on_view=None
+) -> list[dict]:
+    """Per-view metric dicts for the scene's test views against ``renders`` (same order);
+    ``on_view(row)`` after each view (progress)."""
     per_view = []
     for view, pred in zip(scene.test, renders, strict=True):
         gt = composite(view.image, view.mask, 1.0)
         row = {"name": view.name}
         row.update(suite.evaluate(pred, gt, view.mask, masked=masked))
         per_view.append(row)
+        if on_view is not None:
+            on_view(row)
     return per_view
 
 
@@ -120,7 +125,13 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     renders = render_views(gaussians, scene.test_cameras, ctx.device, params.get("backend", "auto"))
     render_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    per_view = evaluate_scene(scene, renders, suite, bool(params.get("masked", False)))
+    bar = ctx.progress(len(scene.test), "metrics of the test views")
+
+    def advance(row: dict) -> None:
+        bar.advance(1, **({"psnr": row["psnr"]} if row["psnr"] is not None else {}))
+
+    per_view = evaluate_scene(scene, renders, suite, bool(params.get("masked", False)), on_view=advance)
+    bar.close()
     metric_s = time.perf_counter() - t0
     mean = mean_metrics(per_view)
 

@@ -29,6 +29,7 @@ from go_pipeline.steps.weights import weight_paths
 from go_core.io.atomic import atomic_write_json
 
 VERSION = "1"
+SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
@@ -101,11 +102,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         raise ValueError(f"lora.resolution must be a multiple of 64, got {settings.resolution}")
     bar: dict = {}
 
-    def advance(step: int) -> None:
+    def advance(step: int, loss: float) -> None:
         """Progress bar created at the first step run, so a resumed run starts at its checkpoint."""
         if "p" not in bar:
             bar["p"] = ctx.progress(settings.steps, "LoRA tuning", completed=step - 1)
-        bar["p"].advance()
+        bar["p"].advance(1, loss=loss)
 
     summary = tune(
         diffusion,
@@ -114,7 +115,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         settings,
         ctx.seed,
         checkpoint_dir=Path(ctx.checkpoint_dir),
-        on_step=lambda step, loss: advance(step),
+        on_step=advance,
         fingerprint_extra=device,
     )
     if "p" in bar:

@@ -23,6 +23,7 @@ from go_core.repair.noise import NoiseStats
 from go_core.repair.pairs import noise_pair
 
 VERSION = "1"
+SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 
 def _thumb(img: np.ndarray, size: int) -> np.ndarray:

@@ -29,6 +29,7 @@ from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 
 VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
+SKIP_IF_SKIPPED = ("lora",)  # the runner skips this step, without a worker, when that input skipped
 
 
 def _lpips(net: str, weight: float):
@@ -137,11 +138,11 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     torch.manual_seed(int(ctx.seed))
     bar: dict = {}
 
-    def advance(step: int) -> None:
+    def advance(step: int, info: dict) -> None:
         """Progress bar created at the first step run, so a resumed run starts at its checkpoint."""
         if "p" not in bar:
             bar["p"] = ctx.progress(settings.iterations, "Gaussian repair", completed=step - 1)
-        bar["p"].advance()
+        bar["p"].advance(1, loss=info.get("loss"), gaussians=info.get("n"))
 
     result, summary, facts = repair_gaussians(
         coarse,
@@ -151,7 +152,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         ctx.seed,
         checkpoint_dir=Path(ctx.checkpoint_dir),
         lpips=lpips,
-        on_progress=lambda step, info: advance(step),
+        on_progress=advance,
     )
     if "p" in bar:
         bar["p"].close()

@@ -30,7 +30,7 @@ class FakeProgress:
     def __init__(self) -> None:
         self.n = 0
 
-    def advance(self, n: int = 1) -> None:
+    def advance(self, n: int = 1, **fields) -> None:
         self.n += n
 
     def close(self) -> None:

@@ -3,6 +3,7 @@ file, no traceback on a closed pipe, a clear error for --device cuda without CUD
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -94,3 +95,47 @@ def test_device_cuda_without_cuda_is_an_error(toy):
 def test_example_folder_is_git_ignored():
     patterns = (REPO / ".gitignore").read_text().split()
     assert "/go-example/" in patterns or "go-example/" in patterns
+
+
+AFTER = """
+import json
+VERSION = "1"
+SKIP_IF_SKIPPED = ("s",)
+
+def run(ctx, inputs, params):
+    (ctx.out_dir / "after.json").write_text(json.dumps({"status": "ok"}))
+    (ctx.out_dir / "after.npz").write_bytes(b"")
+    ctx.record(status="ok")
+"""
+
+
+def test_runner_skips_without_a_worker(toy, monkeypatch):
+    """A step declaring SKIP_IF_SKIPPED is skipped by the runner when that input skipped: no worker
+    process, its .json / .npz outputs written for it, a short reason naming the root step."""
+    import numpy as np
+
+    from go_pipeline import executor
+    from go_pipeline.runner import run_pipeline
+
+    toy.step_file("after").write_text(AFTER)
+    toy.pipeline.write_text(
+        toy.pipeline.read_text().replace(
+            "profiles:",
+            f"  after:\n    function: {toy.pkg}.after:run\n    inputs: {{s: side}}\n"
+            "    outputs: [after.json, after.npz]\n    params: {}\nprofiles:",
+        )
+    )
+    started = []
+    real = executor.execute
+    monkeypatch.setattr(
+        executor, "execute", lambda job, *a, **k: started.append(job["step"]) or real(job, *a, **k)
+    )
+    summary = run_pipeline(toy.scene, pipeline_path=toy.pipeline, overrides={"side.skip": True}, quiet=True)
+    after = summary.step("after")
+    assert after.status == "skipped" and "after" not in started and "side" in started
+    assert after.record["reason"] == "label says skip (see the side step)"
+    assert json.loads((after.artifact_dir / "after.json").read_text())["status"] == "skipped"
+    assert len(np.load(after.artifact_dir / "after.npz").files) == 0
+    # (the skip follows the upstream's record; its output must differ too, as weights.json does)
+    summary = run_pipeline(toy.scene, pipeline_path=toy.pipeline, overrides={"side.label": "x"}, quiet=True)
+    assert summary.step("after").status == "ran" and "after" in started

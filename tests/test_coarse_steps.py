@@ -36,7 +36,7 @@ class Ctx:
 
     def progress(self, total, description="", completed=0):
         class P:
-            def advance(self, n=1):
+            def advance(self, n=1, **fields):
                 pass
 
             def close(self):

@@ -37,10 +37,10 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     summary = run_pipeline(EXAMPLE, workdir=work, profile="test", quiet=True)
     steps = {s.name: s for s in summary.steps}
     assert steps["coarse"].status == "cached"
-    for name in ("loo", "noise_pairs", "lora"):
+    assert "Stable Diffusion 1.5" in steps["weights"].record["reason"]  # the long message: once
+    for name in ("loo", "noise_pairs", "lora", "repair"):  # skipped by the runner, without a worker
         assert steps[name].status == "skipped", name
-    assert "Stable Diffusion 1.5" in steps["lora"].record["reason"]
-    assert steps["repair"].status == "skipped"
+        assert steps[name].record["reason"] == "repair model weights missing (see the weights step)", name
     assert not (steps["repair"].artifact_dir / "gaussians.npz").exists()
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
-    assert metrics["model"] == "coarse" and "Stable Diffusion 1.5" in metrics["model_reason"]
+    assert metrics["model"] == "coarse" and "repair model weights missing" in metrics["model_reason"]

@@ -64,7 +64,7 @@ def test_first_run_then_noop(toy):
     assert not list(toy.scene.glob(".go/checkpoints/*/*"))  # checkpoints removed after success
     assert (toy.scene / ".go" / "runs" / "last.json").is_file()
     log = first.log_path.read_text()
-    assert "[ingest] read 6 numbers" in log and "progress end train: iterations 30/30" in log
+    assert "[ingest] read 6 numbers" in log and "[train] train: iterations 30/30 (100%)" in log
 
 
 def test_cache_keys_stable_across_processes(toy, tmp_path):
