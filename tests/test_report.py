@@ -68,8 +68,13 @@ def test_report_markdown_and_html(ran, tmp_path):
     assert "![test views](test_grid.png)" in text and "| eval |" in text and "PSNR" in text
     for name in ("test_grid.png", "steps.png", "views.png"):
         assert Image.open(tmp_path / "md" / name).size[0] > 50
-    page = write_html(report, tmp_path / "html").read_text()
-    assert "<img src='test_grid.png'>" in page and "<table>" in page
+    # the grid is redrawn labelled (view names, row names, an error colour bar): larger than the raw grid
+    raw = Image.open(report["images"]["test_grid"]).size
+    labelled = Image.open(tmp_path / "md" / "test_grid.png").size
+    assert labelled[1] > raw[1]
+    page = write_html(report, tmp_path / "html").read_text()  # one self-contained file
+    assert "<h2>Test views</h2>" in page and "<img src='data:image/png;base64," in page and "<table>" in page
+    assert sorted(p.name for p in (tmp_path / "html").iterdir()) == ["report.html"]
 
 
 def test_report_cli_json(ran, capsys):
