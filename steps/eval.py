@@ -21,13 +21,27 @@ import numpy as np
 from go_core.io.atomic import atomic_write, atomic_write_json
 from go_core.metrics.evaluate import MetricSuite, composite, error_map, mean_metrics
 
-VERSION = "1"
+VERSION = "2"  # 2: metrics.json names the repair model
 METRICS_SCHEMA = "go-pipeline/metrics"
+
+
+def _repair_model(inputs: dict[str, Path]) -> str:
+    """Which repair model produced the result ("compact:<name> (fine-tuned)", "sd15 (...)"), or ""."""
+    info_path = Path(inputs["repair"]) / "repair.json" if inputs.get("repair") else None
+    if info_path is None or not info_path.exists():
+        return ""
+    info = json.loads(info_path.read_text())
+    if info.get("status") != "ok":
+        return ""
+    model = str(info.get("repair_model", "sd15"))
+    if model == "compact":
+        model = f"compact:{info.get('compact_model', '')}"
+    return f"{model} ({info.get('lora', '')})"
 
 
 def _model_reason(inputs: dict[str, Path], used: str) -> str:
     if used == "repair":
-        return "repair ran"
+        return f"repair ran: {_repair_model(inputs)}"
     repair = inputs.get("repair")
     if repair is None:
         return "no repair step in this pipeline"
@@ -140,6 +154,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "version": 1,
         "model": used,
         "model_reason": reason,
+        "repair_model": _repair_model(inputs) if used == "repair" else "",
         "num_gaussians": len(gaussians),
         "protocol": {
             "ground_truth": "test image composited on white with its mask",

@@ -15,6 +15,11 @@ falls back to the coarse model. Paths given but wrong already failed in the weig
 pretrained ControlNet without LoRA).
 
 Outputs: ``lora.json``; with status ok also ``lora.safetensors`` (only the LoRA tensors).
+
+With the compact repair model (``weights.repair_model``): a full fine-tune of the pretrained restorer on the
+same Algorithm-1 pairs (go_core.compact.tuning: L1, Adam ``compact_lr``, ``compact_steps`` steps at
+``compact_resolution``), checkpointed as safetensors; writes ``compact.safetensors`` (the tuned network)
+and records the loss on the leave-one-out pairs before and after tuning.
 """
 
 from __future__ import annotations
@@ -24,12 +29,108 @@ from dataclasses import asdict
 from pathlib import Path
 
 from go_pipeline.steps._common import repair_weights_missing, write_skipped
-from go_pipeline.steps.weights import weight_paths
+from go_pipeline.steps.weights import compact_info, repair_model, weight_paths
 
 from go_core.io.atomic import atomic_write_json
 
-VERSION = "1"
+VERSION = "2"  # 2: the compact repair model
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
+
+
+def _pair_source(inputs: dict[str, Path], params: dict, views):
+    """Algorithm 1's pair source over the coarse model, the noise statistics and the leave-one-out pairs."""
+    from go_core.gaussians import Gaussians
+    from go_core.repair.noise import NoiseStats
+    from go_core.repair.pairs import LooPairs, PairSource
+
+    noise_cfg = json.loads((Path(inputs["noise_pairs"]) / "noise_pairs.json").read_text())
+    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
+    loo = LooPairs(inputs["loo"]) if params.get("use_loo_pairs", True) else None
+    return PairSource(
+        coarse,
+        NoiseStats.from_json(noise_cfg["stats"]),
+        views,
+        loo,
+        p0=float(noise_cfg["p0"]),
+        decay=float(noise_cfg["decay"]),
+        backend=str(params.get("backend", "auto")),
+        noise_scale=float(noise_cfg["noise_scale"]),
+    )
+
+
+def _run_compact(ctx, inputs: dict[str, Path], params: dict) -> None:
+    """Per-scene full fine-tune of the compact restorer (see the module docstring)."""
+    from safetensors.torch import save_file
+
+    from go_core.compact.restorer import CompactRestorer
+    from go_core.compact.tuning import CompactTuneSettings, held_out_loss, pair_tensors, tune_compact
+    from go_core.io.atomic import atomic_write
+    from go_core.repair.data import training_views
+    from go_core.repair.pairs import LooPairs
+
+    info = compact_info(inputs)
+    model = CompactRestorer.load(info["name"])  # missing or corrupt weights: one MissingWeightsError
+    base = {"repair_model": "compact", "compact": info}
+    if not params.get("finetune", True):
+        atomic_write_json(
+            Path(ctx.out_dir) / "lora.json",
+            {**base, "status": "pretrained", "reason": "ablation: no fine-tuning (pretrained restorer only)"},
+        )
+        ctx.record(status="pretrained", repair_model="compact", reason="ablation: no fine-tuning")
+        return
+    settings = CompactTuneSettings(
+        steps=int(params.get("compact_steps", 400)),
+        lr=float(params.get("compact_lr", 1e-4)),
+        betas=tuple(float(b) for b in params.get("betas", [0.9, 0.999])),
+        resolution=int(params.get("compact_resolution", 256)),
+        checkpoint_every=int(params.get("checkpoint_every", 100)),
+    )
+    if settings.resolution % model.scale:
+        raise ValueError(
+            f"lora.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"
+        )
+    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    source = _pair_source(inputs, params, views)
+    loo = LooPairs(inputs["loo"])
+    loo_pairs = [pair_tensors(loo.get(i), settings.resolution) for i in range(len(loo))]
+    before = held_out_loss(model, loo_pairs)
+    bar: dict = {}
+
+    def advance(step: int) -> None:
+        if "p" not in bar:
+            bar["p"] = ctx.progress(settings.steps, "compact tuning", completed=step - 1)
+        bar["p"].advance()
+
+    summary = tune_compact(
+        model, source.draw, source.schedule, settings, ctx.seed, Path(ctx.checkpoint_dir),
+        on_step=lambda step, loss: advance(step), fingerprint_extra=info["sha256"],
+    )  # fmt: skip
+    if "p" in bar:
+        bar["p"].close()
+    after = held_out_loss(model, loo_pairs)
+    resumed_from = summary.pop("resumed_from")
+    tensors = {k: v.contiguous() for k, v in model.net.ncnn_tensors().items()}
+    meta = {"name": info["name"], "base_sha256": info["sha256"], "tuned_steps": str(settings.steps)}
+    atomic_write(
+        Path(ctx.out_dir) / "compact.safetensors", lambda p: save_file(tensors, str(p), metadata=meta)
+    )
+    out = {
+        **base,
+        "status": "ok",
+        "tuned": "compact.safetensors",
+        "method": "full fine-tune (L1, Adam)",
+        "settings": asdict(settings),
+        "loo_pairs_l1": {"before": round(before, 6), "after": round(after, 6), "pairs": len(loo_pairs)},
+        **summary,
+    }
+    atomic_write_json(Path(ctx.out_dir) / "lora.json", out)
+    log = summary["loss_log"]
+    ctx.record(
+        status="ok", repair_model="compact", steps=settings.steps, resumed_from=resumed_from,
+        loss_first=log[0]["loss"] if log else None, loss_last=log[-1]["loss"] if log else None,
+        loo_pairs_l1_before=round(before, 6), loo_pairs_l1_after=round(after, 6),
+        pairs_used=summary["pairs_used"],
+    )  # fmt: skip
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
@@ -37,15 +138,15 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
     from go_core.diffusion.models import load_repair_models, precision_dtypes
     from go_core.diffusion.sampler import RepairDiffusion
-    from go_core.gaussians import Gaussians
     from go_core.repair.data import training_views
-    from go_core.repair.noise import NoiseStats
-    from go_core.repair.pairs import LooPairs, PairSource
     from go_core.repair.tuning import TuneSettings, tune
 
     missing = repair_weights_missing(inputs)
     if missing:  # nothing configured: skip honestly (wrong paths already failed in the weights step)
         write_skipped(ctx, "lora.json", missing, weights=weight_paths(inputs).describe())
+        return
+    if repair_model(inputs) == "compact":
+        _run_compact(ctx, inputs, params)
         return
     paths = weight_paths(inputs)
     weights = paths.describe()
@@ -77,19 +178,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
 
     _, views = training_views(inputs["scene"], inputs.get("mask"))
-    noise_cfg = json.loads((Path(inputs["noise_pairs"]) / "noise_pairs.json").read_text())
-    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
-    loo = LooPairs(inputs["loo"]) if params.get("use_loo_pairs", True) else None
-    source = PairSource(
-        coarse,
-        NoiseStats.from_json(noise_cfg["stats"]),
-        views,
-        loo,
-        p0=float(noise_cfg["p0"]),
-        decay=float(noise_cfg["decay"]),
-        backend=str(params.get("backend", "auto")),
-        noise_scale=float(noise_cfg["noise_scale"]),
-    )
+    source = _pair_source(inputs, params, views)
     settings = TuneSettings(
         steps=int(params.get("steps", 1800)),
         lr=float(params.get("lr", 1e-3)),

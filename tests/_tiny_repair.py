@@ -3,6 +3,7 @@ step context (``one_thread`` is re-exported from tests._threads)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import torch
@@ -95,8 +96,53 @@ def run_weights_step(root: Path, params: dict) -> Path:
     from go_pipeline.steps import weights
 
     ctx = FakeCtx(root, "weights")
-    weights.run(ctx, {}, {k: params.get(k, "") for k in WEIGHT_KEYS})
+    chosen = {k: params[k] for k in ("repair_model", "compact_model") if k in params}
+    weights.run(ctx, {}, {"repair_model": "sd15", **chosen, **{k: params.get(k, "") for k in WEIGHT_KEYS}})
     return ctx.out_dir
+
+
+def tiny_compact(cache_root: Path, name: str = "realesr-animevideov3-x4", seed: int = 0) -> Path:
+    """A tiny SRVGGNetCompact-shaped x4 network (random weights) in the compact-model format, stored under
+    ``name`` in the cache ``cache_root`` (point $GO_PIPELINE_CACHE at it)."""
+    from safetensors.torch import save_file
+
+    from go_core.compact.ncnn import NcnnNet, parse_param
+    from go_core.compact.weights import compact_path
+
+    param = "\n".join(
+        [
+            "7767517",
+            "8 9",
+            "Input in 0 1 data",
+            "Split sp 1 2 data d0 d1",
+            "Convolution c0 1 1 d1 a 0=8 1=3 4=1 5=1 6=216",
+            "PReLU p0 1 1 a b 0=8",
+            "Convolution c1 1 1 b c 0=48 1=3 4=1 5=1 6=3456",
+            "PixelShuffle ps 1 1 c d 0=4",
+            "Interp up 1 1 d0 e 0=1 1=4.0 2=4.0",
+            "BinaryOp add 2 1 d e out",
+        ]
+    )
+    layers = parse_param(param)
+    torch.manual_seed(seed)
+    net = NcnnNet(NcnnNet.spec_of(layers))
+    with torch.no_grad():
+        for p in net.parameters():
+            p.mul_(0.1)
+    path = compact_path(name, cache_root)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "format": "go-pipeline compact repair model 1",
+        "name": name,
+        "source": "test",
+        "wheel_sha256": "",
+        "licence": "",
+        "scale": "4",
+        "prepad": "0",
+        "spec": json.dumps(NcnnNet.spec_of(layers)),
+    }
+    save_file({k: v.contiguous() for k, v in net.ncnn_tensors().items()}, str(path), metadata=meta)
+    return path
 
 
 def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path]:

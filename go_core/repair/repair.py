@@ -11,6 +11,12 @@ with decay linear 1.0 → 0.1, w(t) = 1 − ᾱ_t (DreamFusion), λ(π) = 2·min
 novel views from the middle 80% of each arc of the training-camera ellipse are rendered, put in a square
 frame, noised to a random t (SDEdit) and denoised by DDIM for ⌊50·t/T⌋ steps with the ControlNet on the
 render. Refreshed caches are saved in the checkpoint folder, so a resumed run reuses them exactly.
+
+With a one-pass repair model (the compact restorer, ``go_core.compact.engine.CompactRepair``) there is no
+noise level: each novel view gets a blend strength b ~ U(strength_range), the repaired image is
+render + b·(restore(render) − render), and b takes w(t)'s place (w = b: the fraction of the image the model
+replaces, as 1 − ᾱ_t is the fraction of signal SDEdit replaces by noise). λ(π), the decay and the refresh
+schedule are unchanged.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ class RepairSettings:
     views_per_arc: int = 2
     keep: float = 0.8  # middle fraction of each arc that is sampled
     t_range: tuple[float, float] = (0.1, 1.0)  # SDEdit strength t/T (authors' code: 0.1 .. 1.0)
+    strength_range: tuple[float, float] = (0.5, 1.0)  # one-pass models: blend strength b (w = b)
     num_inference_steps: int = 50
     eta: float = 1.0
     resolution: int = 512
@@ -68,7 +75,7 @@ class CachedView:
     camera: Camera
     image: torch.Tensor  # repaired [H, W, 3]
     render: torch.Tensor  # the render it was made from [H, W, 3]
-    timestep: int
+    timestep: int  # DDIM: the SDEdit timestep; one-pass models: round(1000 · blend strength)
     w: float
     lam: float
     arc: int
@@ -120,7 +127,7 @@ class RepairCache:
             return
         path = self._path(period)
         if path is not None and path.is_file():
-            data = torch.load(path, map_location="cpu", weights_only=False)
+            data = torch.load(path, map_location="cpu", weights_only=True)
             self.views = [
                 CachedView(
                     _cam_from_dict(v["camera"]),
@@ -135,6 +142,8 @@ class RepairCache:
             ]
         else:
             self.views = self.make(period, g)
+            for v in self.views:  # the stored precision, so a resumed run (which reads the file) is identical
+                v.image, v.render = v.image.half().float(), v.render.half().float()
             if path is not None:
                 from go_core.io.atomic import atomic_torch_save
 
@@ -167,16 +176,22 @@ class RepairCache:
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
             square = frame.to_square(base, s.resolution).to(self.diffusion.device)
-            t_frac = float(rng.uniform(*s.t_range))
-            res = self.diffusion.repair(square, t_frac, gen, s.num_inference_steps, s.eta)
-            full = frame.from_square(res.images.float().cpu(), base)
+            if getattr(self.diffusion, "one_pass", False):
+                b = float(rng.uniform(*s.strength_range))
+                images, label, w = self.diffusion.repair_one_pass(square, b), round(1000 * b), b
+            else:
+                t_frac = float(rng.uniform(*s.t_range))
+                res = self.diffusion.repair(square, t_frac, gen, s.num_inference_steps, s.eta)
+                images, label = res.images, res.timestep
+                w = dreamfusion_weight(self.diffusion.alphas_cumprod, res.timestep)
+            full = frame.from_square(images.float().cpu(), base)
             out.append(
                 CachedView(
                     rv.camera,
                     bchw_to_hwc(full),
                     rgb,
-                    res.timestep,
-                    dreamfusion_weight(self.diffusion.alphas_cumprod, res.timestep),
+                    label,
+                    w,
                     distance_weight(rv.camera.center, self.refs, self.d_max),
                     rv.arc,
                 )

@@ -59,7 +59,8 @@ def _result(manifests: dict[str, dict], metrics: dict | None) -> dict[str, Any]:
     if metrics is not None:
         model, reason = metrics.get("model"), metrics.get("model_reason", "")
     elif repair_ran:
-        model, reason = "repair", "repair ran"
+        model = "repair"
+        reason = f"repair ran: {repair_record.get('repair_model', 'sd15')} ({repair_record.get('lora', '')})"
     elif "coarse" in manifests:
         model = "coarse"
         reason = (

@@ -1,0 +1,201 @@
+"""Per-scene tuning of the compact repair model on self-generated pairs (paper Sec. 3.4), resumable.
+
+Each step draws one degraded/clean pair (Algorithm 1: ``go_core.repair.pairs.PairSource``), puts both in the
+clean view's square frame at ``resolution`` and minimises L1(restore(degraded), clean) with Adam on every
+weight of the network (a full fine-tune: the network has 0.6 M parameters; see docs/repair.md for the
+measurement against smaller learning rates and no tuning). Checkpoints are one safetensors file each
+(weights, Adam moments, torch RNG) with the rest (step, numpy RNG, pair schedule, loss log) as JSON
+metadata: no pickle. A restarted run continues from the newest checkpoint and ends bit-identical (CPU).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from go_core.compact.restorer import CompactRestorer
+from go_core.diffusion.frame import Frame
+from go_core.repair.data import hwc_to_bchw
+from go_core.repair.pairs import Pair
+
+CKPT_FORMAT = "compact-tune-1"
+
+
+@dataclass(frozen=True)
+class CompactTuneSettings:
+    steps: int = 400
+    lr: float = 1e-4
+    betas: tuple[float, float] = (0.9, 0.999)
+    resolution: int = 256
+    checkpoint_every: int = 100
+    log_every: int = 10
+
+    def fingerprint(self, extra: str = "") -> str:
+        blob = json.dumps({"s": asdict(self), "x": extra}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def pair_tensors(pair: Pair, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(degraded, clean) [1, 3, r, r] in the clean view's square frame."""
+    h, w = pair.clean.shape[:2]
+    frame = Frame.choose(h, w, pair.mask)
+    return (
+        frame.to_square(hwc_to_bchw(pair.degraded), resolution),
+        frame.to_square(hwc_to_bchw(pair.clean), resolution),
+    )
+
+
+def pair_loss(model: CompactRestorer, degraded: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
+    """The tuning objective: L1 between the restored degraded image and the clean one."""
+    return F.l1_loss(model(degraded), clean)
+
+
+@torch.no_grad()
+def held_out_loss(model: CompactRestorer, pairs: list[tuple[torch.Tensor, torch.Tensor]]) -> float:
+    """Mean tuning loss over fixed pairs (eval mode)."""
+    was = model.training
+    model.eval()
+    try:
+        return float(np.mean([float(pair_loss(model, d, c)) for d, c in pairs])) if pairs else float("nan")
+    finally:
+        model.train(was)
+
+
+def _ckpt_paths(directory: Path) -> list[Path]:
+    return sorted(directory.glob("compact_step_*.safetensors")) if directory.is_dir() else []
+
+
+def _save(directory: Path, tensors: dict[str, torch.Tensor], meta: dict, step: int, keep: int = 2) -> None:
+    from safetensors.torch import save_file
+
+    from go_core.io.atomic import atomic_write
+
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"compact_step_{step:07d}.safetensors"
+    tensors = {k: v.detach().contiguous().clone() for k, v in tensors.items()}
+    atomic_write(path, lambda p: save_file(tensors, str(p), metadata={"state": json.dumps(meta)}))
+    for old in _ckpt_paths(directory)[:-keep]:
+        old.unlink(missing_ok=True)
+
+
+def _newest(directory: Path, fingerprint: str) -> tuple[dict[str, torch.Tensor], dict] | None:
+    from safetensors import SafetensorError
+    from safetensors.torch import safe_open
+
+    for path in reversed(_ckpt_paths(directory)):
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                meta = json.loads((f.metadata() or {}).get("state", "{}"))
+                if meta.get("format") != CKPT_FORMAT or meta.get("fingerprint") != fingerprint:
+                    continue
+                return {k: f.get_tensor(k) for k in f.keys()}, meta  # noqa: SIM118
+        except (SafetensorError, OSError, ValueError):
+            continue  # a torn file cannot exist (atomic writes); anything unreadable is simply not used
+    return None
+
+
+def tune_compact(
+    model: CompactRestorer,
+    draw: Callable[[np.random.Generator, torch.Generator], Pair],
+    schedule,
+    settings: CompactTuneSettings,
+    seed: int,
+    checkpoint_dir: Path | None = None,
+    on_step: Callable[[int, float], None] | None = None,
+    fingerprint_extra: str = "",
+) -> dict:
+    """Fine-tune ``model`` in place on pairs from ``draw(rng, generator)``; ``schedule`` is the pair
+    schedule whose state is checkpointed (``PairSchedule``). Returns a summary dict."""
+    params = list(model.parameters())
+    names = [n for n, _ in model.named_parameters()]
+    opt = torch.optim.Adam(params, lr=settings.lr, betas=tuple(settings.betas))
+    gen = torch.Generator().manual_seed(int(seed) * 2 + 1)
+    rng = np.random.default_rng(int(seed))
+    losses: list[dict] = []
+    counts = {"noise": 0, "loo": 0}
+    start, running = 0, 0.0
+    fp = settings.fingerprint(fingerprint_extra)
+    if checkpoint_dir is not None:
+        found = _newest(Path(checkpoint_dir), fp)
+        if found is not None:
+            tensors, meta = found
+            model.load_state_dict(
+                {k[len("model.") :]: v for k, v in tensors.items() if k.startswith("model.")}
+            )
+            if meta["adam_step"] > 0:
+                state = opt.state_dict()
+                state["state"] = {
+                    i: {
+                        "step": torch.tensor(float(meta["adam_step"])),
+                        "exp_avg": tensors[f"adam.{n}.exp_avg"],
+                        "exp_avg_sq": tensors[f"adam.{n}.exp_avg_sq"],
+                    }
+                    for i, n in enumerate(names)
+                }
+                opt.load_state_dict(state)
+            gen.set_state(tensors["torch_rng"])
+            rng.bit_generator.state = meta["np_rng"]
+            schedule.load_state(meta["schedule"])
+            losses, counts, start, running = (
+                meta["losses"],
+                meta["counts"],
+                int(meta["step"]),
+                meta["running"],
+            )
+    model.train()
+    for step in range(start + 1, settings.steps + 1):
+        pair = draw(rng, gen)
+        counts[pair.kind] += 1
+        deg, clean = pair_tensors(pair, settings.resolution)
+        loss = pair_loss(model, deg, clean)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        value = float(loss.detach())
+        running += value
+        every = max(settings.log_every, 1)
+        if step % every == 0 or step == settings.steps:
+            n = step % every or every
+            losses.append({"step": step, "loss": round(running / n, 6), "p_manual": round(schedule.p, 6)})
+            running = 0.0
+        if on_step is not None:
+            on_step(step, value)
+        if (
+            checkpoint_dir is not None
+            and settings.checkpoint_every > 0
+            and step % settings.checkpoint_every == 0
+            and step < settings.steps
+        ):
+            tensors = {f"model.{k}": v for k, v in model.state_dict().items()}
+            for i, n in enumerate(names):
+                st = opt.state[params[i]]
+                tensors[f"adam.{n}.exp_avg"] = st["exp_avg"]
+                tensors[f"adam.{n}.exp_avg_sq"] = st["exp_avg_sq"]
+            tensors["torch_rng"] = gen.get_state()
+            meta = {
+                "format": CKPT_FORMAT,
+                "fingerprint": fp,
+                "step": step,
+                "adam_step": step,
+                "np_rng": rng.bit_generator.state,
+                "schedule": schedule.state(),
+                "losses": losses,
+                "counts": counts,
+                "running": running,
+            }
+            _save(Path(checkpoint_dir), tensors, meta, step)
+    model.eval()
+    return {
+        "steps": settings.steps,
+        "loss_log": losses,
+        "pairs_used": counts,
+        "p_manual_final": schedule.p,
+        "resumed_from": start,
+    }

@@ -1,0 +1,266 @@
+"""The compact repair model: ncnn parity, weights errors, per-scene tuning, resumable lora/repair steps."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from tests._tiny_repair import FakeCtx, one_thread, run_weights_step, synthetic_inputs, tiny_compact
+
+EXAMPLE_IMAGE = Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket" / "train"
+LOO = {"phase1_iterations": 12, "phase2_iterations": 6, "renders": 2, "checkpoint_every": 0}
+LORA = {"compact_steps": 6, "compact_resolution": 64, "checkpoint_every": 2, "compact_lr": 1e-3}
+REPAIR = {
+    "iterations": 10,
+    "repair_iterations": 8,
+    "refresh_every": 4,
+    "views_per_arc": 2,
+    "compact_resolution": 64,
+    "checkpoint_every": 5,
+    "lpips": 0.0,
+}
+COMPACT = {"repair_model": "compact"}
+
+
+@pytest.fixture(autouse=True)
+def _threads():
+    with one_thread():
+        yield
+
+
+@pytest.fixture()
+def tiny_cache(tmp_path, monkeypatch):
+    root = tmp_path / "cache"
+    tiny_compact(root)
+    monkeypatch.setenv("GO_PIPELINE_CACHE", str(root))
+    return root
+
+
+@pytest.fixture(scope="module")
+def upstream(tmp_path_factory):
+    from go_pipeline.steps import loo, noise_pairs
+
+    root = tmp_path_factory.mktemp("compact_steps")
+    with one_thread():
+        dirs = synthetic_inputs(root)
+        ctx = FakeCtx(root, "loo")
+        loo.run(ctx, dirs, LOO)
+        dirs["loo"] = ctx.out_dir
+        ctx = FakeCtx(root, "noise_pairs")
+        noise_pairs.run(ctx, dirs, {"preview_size": 0})
+        dirs["noise_pairs"] = ctx.out_dir
+    return root, dirs
+
+
+def _lora(root: Path, dirs: dict, params: dict) -> FakeCtx:
+    from go_pipeline.steps import lora
+
+    weights = run_weights_step(root / "weights", COMPACT)
+    ctx = FakeCtx(root, "lora")
+    lora.run(ctx, {**dirs, "weights": weights}, params)
+    return ctx
+
+
+def _repair(root: Path, dirs: dict, lora_dir: Path, params: dict) -> FakeCtx:
+    from go_pipeline.steps import repair
+
+    ctx = FakeCtx(root, "repair")
+    repair.run(ctx, {**dirs, "lora": lora_dir}, params)
+    return ctx
+
+
+# --- parity with the original runtime -------------------------------------------------------------------
+
+
+def _ncnn_pair(name: str) -> tuple[Path, Path]:
+    from go_core.compact.weights import ncnn_files
+
+    param, binf = ncnn_files(name)
+    if not param.is_file():
+        pytest.skip(f"{param} missing: run `go-pipeline weights fetch` (keeps the original .param/.bin)")
+    return param, binf
+
+
+@pytest.mark.parametrize(
+    "name", ["realesr-animevideov3-x4", "waifu2x-upconv7-photo-noise3-x2", "waifu2x-upconv7-photo-noise1-x2"]
+)
+def test_torch_port_matches_ncnn_runtime_on_a_photo(name):
+    """The torch port of the .param/.bin (via the converted safetensors) equals ncnn's CPU output within
+    2e-4 (float32 accumulation order; measured ~5e-6) on a 48x40 crop of the example's first photo."""
+    ncnn = pytest.importorskip("ncnn", reason="the `ncnn` package is a dev extra (pip install -e '.[dev]')")
+    from PIL import Image
+
+    from go_core.compact.weights import load_compact
+
+    param, binf = _ncnn_pair(name)
+    photo = np.asarray(Image.open(sorted(EXAMPLE_IMAGE.glob("*.png"))[0]).convert("RGB"), np.float32) / 255.0
+    h, w = photo.shape[:2]
+    crop = np.ascontiguousarray(
+        photo[h // 2 - 20 : h // 2 + 20, w // 2 - 24 : w // 2 + 24].transpose(2, 0, 1)
+    )
+    net, meta = load_compact(name)
+    with torch.no_grad():
+        ours = net(torch.from_numpy(crop)[None])[0].numpy()
+    ref_net = ncnn.Net()
+    ref_net.opt.use_vulkan_compute = False
+    for flag in ("use_fp16_storage", "use_fp16_arithmetic", "use_fp16_packed", "use_packing_layout"):
+        setattr(ref_net.opt, flag, False)
+    ref_net.opt.num_threads = 1
+    assert ref_net.load_param(str(param)) == 0 and ref_net.load_model(str(binf)) == 0
+    ex = ref_net.create_extractor()
+    ex.input(net.input_name, ncnn.Mat(crop))
+    ret, out = ex.extract(net.output_name)
+    ref = np.array(out)
+    assert ret == 0 and ref.shape == ours.shape
+    pad = 2 * meta["prepad"]  # upconv_7 consumes 7 px per side (the restorer pre-pads them)
+    assert ours.shape == (3, (40 - pad) * meta["scale"], (48 - pad) * meta["scale"])
+    assert np.abs(ours - ref).max() < 2e-4
+    assert np.abs(ref).max() > 0.1  # a real image came out, not zeros
+
+
+def test_ncnn_param_parser_reads_arrays_and_refuses_unknown_layers():
+    from go_core.compact.ncnn import parse_param
+
+    layers = parse_param(
+        "7767517\n2 2\nInput in 0 1 x\nConvolution c 1 1 x y 0=4 1=3 5=1 6=108 9=2 -23310=1,0.100000\n"
+    )
+    assert layers[1].params[10] == [0.1] and layers[1].params[6] == 108
+    with pytest.raises(ValueError, match="Softmax"):
+        parse_param("7767517\n2 2\nInput in 0 1 x\nSoftmax s 1 1 x y\n")
+
+
+# --- weights: one clear error, nothing half-written -----------------------------------------------------
+
+
+@pytest.mark.parametrize("damage", ["missing", "partial", "corrupt"])
+def test_bad_compact_weights_are_one_error_naming_file_and_fetch(tmp_path, monkeypatch, damage):
+    from go_pipeline.steps import weights
+
+    from go_core.compact.weights import compact_path
+    from go_core.errors import MissingWeightsError
+
+    root = tmp_path / "cache"
+    path = tiny_compact(root)
+    monkeypatch.setenv("GO_PIPELINE_CACHE", str(root))
+    data = path.read_bytes()
+    if damage == "missing":
+        path.unlink()
+    elif damage == "partial":
+        path.write_bytes(data[: len(data) // 2])
+    else:
+        path.write_bytes(data[:8] + b"{garbage" + data[16:])
+    ctx = FakeCtx(tmp_path, "weights")
+    with pytest.raises(MissingWeightsError) as err:
+        weights.run(ctx, {}, {"repair_model": "compact"})
+    msg = str(err.value)
+    assert str(compact_path("realesr-animevideov3-x4", root)) in msg and "go-pipeline weights fetch" in msg
+    assert "\n" not in msg
+    assert list(ctx.out_dir.iterdir()) == []  # nothing written
+
+
+def test_auto_chooses_compact_without_sd_weights_and_records_its_hash(tmp_path, tiny_cache):
+    import hashlib
+
+    out = run_weights_step(tmp_path, {"repair_model": "auto"})
+    info = json.loads((out / "weights.json").read_text())
+    path = Path(info["compact"]["file"])
+    assert info["status"] == "ok" and info["repair_model"] == "compact"
+    assert info["compact"]["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+# --- per-scene tuning ----------------------------------------------------------------------------------
+
+
+def test_tuning_lowers_the_loss_on_held_back_pairs(upstream, tmp_path, tiny_cache):
+    """Tuned on noise pairs only, the restorer's L1 on the (never seen) leave-one-out pairs drops."""
+    root, dirs = upstream
+    ctx = _lora(tmp_path, dirs, {**LORA, "compact_steps": 40, "checkpoint_every": 0, "use_loo_pairs": False})
+    held = json.loads((ctx.out_dir / "lora.json").read_text())["loo_pairs_l1"]
+    assert held["pairs"] >= 4
+    assert held["after"] < 0.95 * held["before"], held
+
+
+def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tiny_cache, monkeypatch):
+    from safetensors.torch import load_file
+
+    from go_core.compact import tuning
+
+    root, dirs = upstream
+    full = _lora(tmp_path / "a", dirs, LORA)
+    original, saved = tuning._save, []
+
+    def save_then_die(directory, tensors, meta, step, keep=2):
+        original(directory, tensors, meta, step, keep)
+        saved.append(step)
+        if step == 4:
+            raise KeyboardInterrupt("simulated kill after the step-4 checkpoint")
+
+    monkeypatch.setattr(tuning, "_save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        _lora(tmp_path / "b", dirs, LORA)
+    assert saved == [2, 4]
+    monkeypatch.setattr(tuning, "_save", original)
+    resumed = _lora(tmp_path / "b", dirs, LORA)
+    assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
+    a = load_file(str(full.out_dir / "compact.safetensors"))
+    b = load_file(str(resumed.out_dir / "compact.safetensors"))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert (full.out_dir / "lora.json").read_bytes() == (resumed.out_dir / "lora.json").read_bytes()
+    first = load_file(str(tiny_cache / "compact" / "realesr-animevideov3-x4.safetensors"))
+    assert any(not torch.equal(first[k], a[k]) for k in a)  # tuning moved the weights
+
+
+# --- repair ---------------------------------------------------------------------------------------------
+
+
+def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
+    upstream, tmp_path, tiny_cache, monkeypatch
+):
+    import go_core.training as loop
+    from go_core.gaussians import Gaussians
+
+    root, dirs = upstream
+    lora_ctx = _lora(tmp_path / "l", dirs, LORA)
+    full = _repair(tmp_path / "a", dirs, lora_ctx.out_dir, REPAIR)
+    info = json.loads((full.out_dir / "repair.json").read_text())
+    assert info["status"] == "ok" and info["repair_model"] == "compact" and info["lora"] == "fine-tuned"
+    for v in info["last_views"]:  # one-pass: t is the blend strength x 1000, w = the strength
+        assert 500 <= v["t"] <= 1000 and v["w"] == pytest.approx(v["t"] / 1000, abs=1e-3)
+        assert v["lambda"] > 0
+
+    original = loop._save_checkpoint
+    calls = []
+
+    def save_then_die(*args, **kwargs):
+        original(*args, **kwargs)
+        calls.append(1)
+        raise KeyboardInterrupt("simulated kill after the first repair checkpoint")
+
+    monkeypatch.setattr(loop, "_save_checkpoint", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        _repair(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR)
+    monkeypatch.setattr(loop, "_save_checkpoint", original)
+    resumed = _repair(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR)
+    assert calls and resumed.records["resumed_from"] == 5
+    a = Gaussians.load(full.out_dir / "gaussians.npz")
+    b = Gaussians.load(resumed.out_dir / "gaussians.npz")
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+    assert (full.out_dir / "repair.json").read_bytes() == (resumed.out_dir / "repair.json").read_bytes()
+
+
+def test_pretrained_ablation_and_sds_refusal(upstream, tmp_path, tiny_cache):
+    from go_core.errors import GoError
+
+    root, dirs = upstream
+    ctx = _lora(tmp_path / "p", dirs, {**LORA, "finetune": False})
+    info = json.loads((ctx.out_dir / "lora.json").read_text())
+    assert info["status"] == "pretrained" and info["repair_model"] == "compact"
+    rep = _repair(tmp_path / "r", dirs, ctx.out_dir, REPAIR)
+    assert json.loads((rep.out_dir / "repair.json").read_text())["lora"] == "pretrained (no fine-tuning)"
+    with pytest.raises(GoError, match="sd15"):
+        _repair(tmp_path / "s", dirs, ctx.out_dir, {**REPAIR, "loss": "sds"})
