@@ -38,6 +38,7 @@ def settings_from(params: dict, sh_degree: int, coarse_config: dict | None = Non
         phase1_iterations=int(params.get("phase1_iterations", 6000)),
         phase2_iterations=int(params.get("phase2_iterations", 4000)),
         renders=int(params.get("renders", 10)),
+        compress_schedule=bool(params.get("compress_schedule", False)),
         checkpoint_every=int(params.get("checkpoint_every", 500)),
         sh_degree=sh_degree,
         backend=str(params.get("backend", "auto")),

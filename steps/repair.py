@@ -33,7 +33,8 @@ from go_pipeline.steps._common import write_skipped
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 
-VERSION = "5"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam; 5: compact
+VERSION = "5"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam;
+# 5: the compact repair model
 SKIP_IF_SKIPPED = ("lora",)  # the runner skips this step, without a worker, when that input skipped
 
 

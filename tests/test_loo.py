@@ -97,3 +97,17 @@ def test_parallel_workers_give_the_same_artifacts(done, tmp_path):
     assert ctx.records["workers"] == 2
     for name in ("loo.json", "loo_pairs.npz"):
         assert (ctx.out_dir / name).read_bytes() == (first.out_dir / name).read_bytes()
+
+
+def test_compressed_schedule_scales_every_step_schedule_to_phase_one():
+    from go_core.repair.loo import compressed_config
+    from go_core.training import CoarseConfig
+
+    base = CoarseConfig()  # 10 000 its: densify 500..6000 every 100, reset 1000, floaters 500..6000 every 500
+    c = compressed_config(base, 1000)
+    assert c.iterations == 1000 and c.sh_increase_every == 100 and c.lr.means_max_steps == 3000
+    d = c.densify
+    assert (d.start_iter, d.stop_iter, d.every, d.reset_every) == (50, 600, 10, 100)
+    assert (c.floaters.start_iter, c.floaters.stop_iter, c.floaters.every) == (50, 600, 50)
+    assert c.densify.grad_threshold == base.densify.grad_threshold and c.lr.sh0 == base.lr.sh0
+    assert compressed_config(base, 20_000).densify == base.densify  # never stretched

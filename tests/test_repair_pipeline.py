@@ -24,6 +24,7 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     weights = tiny_weights(tmp_path / "weights")
     work = tmp_path / "work"
     with_weights = {f"weights.{k}": v for k, v in weights.items()}
+    with_weights["weights.repair_model"] = "sd15"
     summary = run_pipeline(EXAMPLE, workdir=work, profile="test", overrides=with_weights, quiet=True)
     steps = {s.name: s for s in summary.steps}
     for name in ("loo", "noise_pairs", "lora", "repair", "eval"):
@@ -33,8 +34,11 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     assert metrics["model"] == "repair"
     assert (steps["repair"].artifact_dir / "gaussians.npz").is_file()
 
-    # Without weights: coarse is cached, the whole repair chain skips with the message, eval uses coarse.
-    summary = run_pipeline(EXAMPLE, workdir=work, profile="test", quiet=True)
+    # sd15 chosen without its weights: coarse is cached, the whole repair chain skips with the message, eval
+    # uses coarse. (weights.repair_model auto would choose the compact model instead.)
+    summary = run_pipeline(
+        EXAMPLE, workdir=work, profile="test", overrides={"weights.repair_model": "sd15"}, quiet=True
+    )
     steps = {s.name: s for s in summary.steps}
     assert steps["coarse"].status == "cached"
     assert "Stable Diffusion 1.5" in steps["weights"].record["reason"]  # the long message: once
@@ -44,3 +48,22 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     assert not (steps["repair"].artifact_dir / "gaussians.npz").exists()
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
     assert metrics["model"] == "coarse" and "repair model weights missing" in metrics["model_reason"]
+
+
+@pytest.mark.slow
+def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch):
+    """weights.repair_model auto without SD weights: the compact model runs loo → repair and eval says so."""
+    from go_core.compact.weights import DEFAULT_MODEL, compact_path
+    from go_pipeline.runner import run_pipeline
+
+    if not compact_path(DEFAULT_MODEL).is_file():
+        pytest.skip(f"{compact_path(DEFAULT_MODEL)} missing: run `go-pipeline weights fetch`")
+    for var in ("GO_SD15_PATH", "GO_CONTROLNET_TILE_PATH", "GO_CLIP_PATH", "GO_SD15_CONFIG"):
+        monkeypatch.delenv(var, raising=False)
+    summary = run_pipeline(EXAMPLE, workdir=tmp_path / "work", profile="test", quiet=True)
+    steps = {s.name: s for s in summary.steps}
+    for name in ("loo", "noise_pairs", "lora", "repair", "eval"):
+        assert steps[name].status == "ran", name
+    assert steps["repair"].record["repair_model"] == "compact"
+    metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
+    assert metrics["model"] == "repair" and metrics["repair_model"].startswith(f"compact:{DEFAULT_MODEL}")

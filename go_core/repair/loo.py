@@ -34,6 +34,36 @@ class LooSettings:
     sh_degree: int = 2
     backend: str = "auto"
     coarse_config: dict | None = None  # the coarse step's CoarseConfig (coarse.json "config"); None: defaults
+    compress_schedule: bool = False  # phase 1 shorter than coarse: its step schedules scaled to its length
+
+
+def compressed_config(base, iterations: int):
+    """``base`` (a CoarseConfig) run for ``iterations`` with every step-based schedule (densification window,
+    interval and opacity reset, floater window and interval, SH raise, position-lr decay) scaled by
+    iterations / base.iterations: a compressed coarse run (docs/coarse.md: with the hull, 1000 scaled
+    iterations reach the coarse model's test quality). Unchanged when ``iterations`` ≥ base.iterations."""
+    f = iterations / max(base.iterations, 1)
+    if f >= 1.0:
+        return replace(base, iterations=iterations)
+
+    def sc(v: int) -> int:
+        return max(1, round(v * f)) if v > 0 else v
+
+    d, fl, lr = base.densify, base.floaters, base.lr
+    return replace(
+        base,
+        iterations=iterations,
+        sh_increase_every=sc(base.sh_increase_every),
+        lr=replace(lr, means_max_steps=sc(lr.means_max_steps)),
+        densify=replace(
+            d,
+            start_iter=sc(d.start_iter),
+            stop_iter=sc(d.stop_iter),
+            every=sc(d.every),
+            reset_every=sc(d.reset_every),
+        ),
+        floaters=replace(fl, start_iter=sc(fl.start_iter), stop_iter=sc(fl.stop_iter), every=sc(fl.every)),
+    )
 
 
 @dataclass
@@ -74,6 +104,8 @@ def run_one(
     others = [v for i, v in enumerate(views) if i != index]
     gen = torch.Generator().manual_seed(int(seed) * 1000 + index)
     base = CoarseConfig.from_dict(settings.coarse_config) if settings.coarse_config else CoarseConfig()
+    if settings.compress_schedule:
+        base = compressed_config(base, settings.phase1_iterations)
     cfg1 = replace(
         base,
         iterations=settings.phase1_iterations,
