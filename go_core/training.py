@@ -195,17 +195,28 @@ def _render(
     )
 
 
+def view_target(view: TrainView, background: torch.Tensor) -> torch.Tensor:
+    """The ground truth a render over ``background`` is compared with: image·m + bg·(1 - m)."""
+    if view.mask is None:
+        return view.image
+    bg = background.to(view.image.dtype).expand_as(view.image)
+    return torch.lerp(bg, view.image, view.mask[..., None])
+
+
+def train_psnr(out, view: TrainView, background: torch.Tensor) -> float:
+    """PSNR (dB) of this iteration's render of a training view against its target (for training curves)."""
+    with torch.no_grad():
+        mse = float(((out.rgb[0] - view_target(view, background)) ** 2).mean())
+    return 100.0 if mse <= 1e-10 else -10.0 * math.log10(mse)
+
+
 def view_loss(
     out, view: TrainView, background: torch.Tensor, config: CoarseConfig, step: int
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """The coarse loss for one rendered view (see the module docstring). Returns (loss, its parts)."""
     rgb = out.rgb[0]  # [H,W,3]
     alpha = out.alpha[0, ..., 0]  # [H,W]
-    if view.mask is not None:  # the GT over the same background: image·m + bg·(1 - m)
-        bg = background.to(view.image.dtype).expand_as(view.image)
-        gt = torch.lerp(bg, view.image, view.mask[..., None])
-    else:
-        gt = view.image
+    gt = view_target(view, background)
     lam_m = config.lambda_mask if view.mask_weight is None else view.mask_weight
     use_bce = view.mask is not None and lam_m > 0
     l1v, ssv, bce = photometric_terms(rgb, gt, alpha if use_bce else None, view.mask if use_bce else None)
@@ -386,6 +397,7 @@ def optimize(
                         "step": step,
                         "loss": round(loss.item(), 6),
                         "n": len(opt),
+                        "psnr": round(train_psnr(out, view, bg), 4),
                         **{k: round(v, 6) for k, v in parts.items()},
                     }
                 )

@@ -18,6 +18,7 @@ import torch
 from go_core.depth_prior import load_depth_priors
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write_json
+from go_core.io.curves import write_curves
 from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
 from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
@@ -55,6 +56,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     if state["bar"] is not None:
         state["bar"].close()
     gaussians.save(ctx.out_dir / "gaussians.npz")
+    write_curves(ctx.out_dir / "curves.csv", stats.loss_log)  # loss, train PSNR, Gaussians per logged step
     cpu_s = time.process_time() - t0
     info = {
         "gaussians": stats.final_count,

@@ -32,6 +32,7 @@ from go_pipeline.steps._common import write_skipped
 
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core.io.curves import write_curves
 
 VERSION = "5"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam;
 # 5: the compact repair model
@@ -192,6 +193,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         bar["p"].close()
     out = Path(ctx.out_dir)
     result.save(out / "gaussians.npz")
+    write_curves(out / "curves.csv", facts["loss_log"])  # loss, train PSNR, Gaussians per logged step
     _preview(out / "repair_preview.png", facts["cache"])
     info = {
         "status": "ok",

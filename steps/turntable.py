@@ -1,5 +1,7 @@
 """turntable: an animated GIF orbiting the final model (repaired if available, else coarse) on the ellipse
-fitted to the TRAINING cameras only, and a contact-sheet PNG of evenly spaced frames."""
+fitted to the TRAINING cameras only, a contact-sheet PNG of evenly spaced frames, and ``camera_path.mp4``: a
+video along a closed path through the training cameras (``path_frames`` frames between consecutive ones,
+H.264, written bit-exactly so a rerun gives the same bytes)."""
 
 from __future__ import annotations
 
@@ -9,32 +11,82 @@ import numpy as np
 import torch
 from go_pipeline.steps._common import final_model_path
 
+from go_core.errors import GoError
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write
 from go_core.render import render_camera
 from go_core.scene.artifact import load_scene_cameras
-from go_core.trajectory import contact_sheet, turntable_cameras
+from go_core.trajectory import camera_path_cameras, contact_sheet, turntable_cameras
 
 VERSION = "1"
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    import imageio.v3 as iio
-
-    path, source = final_model_path(inputs)
-    g = Gaussians.load(path)
-    train_cams, _ = load_scene_cameras(inputs["scene"])
-    cams = turntable_cameras(train_cams, int(params.get("frames", 60)), int(params.get("max_size", 256)))
-    bg = torch.tensor([float(x) for x in params.get("background", [1.0, 1.0, 1.0])], dtype=torch.float32)
-    backend = str(params.get("backend", "auto"))
+def render_frames(
+    ctx, g: Gaussians, cams: list, bg: torch.Tensor, backend: str, what: str
+) -> list[np.ndarray]:
     frames = []
-    bar = ctx.progress(len(cams), "turntable")
+    bar = ctx.progress(len(cams), what)
     with torch.no_grad():
         for cam in cams:
             out = render_camera(g, cam, background=bg, backend=backend)
             frames.append((out.rgb[0].clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8))
             bar.advance()
     bar.close()
+    return frames
+
+
+def write_mp4(path: Path, frames: list[np.ndarray], fps: float) -> None:
+    """H.264 MP4 (yuv420p, even sizes), one encoder thread and bit-exact flags: same frames, same bytes."""
+    import imageio_ffmpeg
+
+    h, w = frames[0].shape[:2]
+    h2, w2 = h + h % 2, w + w % 2
+    writer = imageio_ffmpeg.write_frames(
+        str(path),
+        (w2, h2),
+        fps=fps,
+        codec="libx264",
+        pix_fmt_in="rgb24",
+        pix_fmt_out="yuv420p",
+        quality=None,
+        macro_block_size=1,
+        ffmpeg_log_level="error",
+        output_params=[
+            "-crf",
+            "18",
+            "-threads",
+            "1",
+            "-fflags",
+            "+bitexact",
+            "-flags:v",
+            "+bitexact",
+            "-map_metadata",
+            "-1",
+            "-f",
+            "mp4",
+        ],
+    )
+    writer.send(None)
+    for f in frames:
+        padded = np.pad(f, ((0, h2 - h), (0, w2 - w), (0, 0)), mode="edge")
+        writer.send(np.ascontiguousarray(padded))
+    writer.close()
+
+
+def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+    import imageio.v3 as iio
+
+    path_frames = int(params.get("path_frames", 15))
+    if path_frames < 1:
+        raise GoError(f"turntable.path_frames must be at least 1, got {path_frames}")
+    path, source = final_model_path(inputs)
+    g = Gaussians.load(path)
+    train_cams, _ = load_scene_cameras(inputs["scene"])
+    max_size = int(params.get("max_size", 256))
+    cams = turntable_cameras(train_cams, int(params.get("frames", 60)), max_size)
+    bg = torch.tensor([float(x) for x in params.get("background", [1.0, 1.0, 1.0])], dtype=torch.float32)
+    backend = str(params.get("backend", "auto"))
+    frames = render_frames(ctx, g, cams, bg, backend, "turntable")
     fps = float(params.get("fps", 20))
     atomic_write(
         ctx.out_dir / "turntable.gif",
@@ -42,4 +94,9 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     )
     sheet = contact_sheet(frames, int(params.get("sheet_frames", 8)))
     atomic_write(ctx.out_dir / "contact_sheet.png", lambda p: iio.imwrite(p, sheet, extension=".png"))
-    ctx.record(source=source, frames=len(frames), size=[cams[0].width, cams[0].height])
+    path_cams = camera_path_cameras(train_cams, path_frames, max_size)
+    video = render_frames(ctx, g, path_cams, bg, backend, "camera path video")
+    atomic_write(ctx.out_dir / "camera_path.mp4", lambda p: write_mp4(p, video, fps))
+    ctx.record(
+        source=source, frames=len(frames), path_frames=len(video), size=[cams[0].width, cams[0].height]
+    )

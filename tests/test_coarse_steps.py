@@ -15,7 +15,7 @@ from go_core.camera import look_at
 from go_core.gaussians import Gaussians
 from go_core.ply import load_ply
 from go_core.render import render_gaussians
-from go_core.scene.artifact import save_scene_artifact
+from go_core.scene.artifact import load_scene_artifact, save_scene_artifact
 from go_core.scene.types import Scene, View
 
 SIZE = 32
@@ -113,6 +113,9 @@ def test_steps_end_to_end(tmp_path):
     first = (ctx.out_dir / "gaussians.npz").read_bytes()
     report = json.loads((ctx.out_dir / "coarse.json").read_text())
     assert report["config"]["iterations"] == 30 and len(report["floater_passes"]) == 2
+    curves = (ctx.out_dir / "curves.csv").read_text().splitlines()
+    assert curves[0].startswith("iteration,loss,train_psnr,gaussians,") and curves[-1].startswith("30,")
+    assert 5.0 < float(curves[-1].split(",")[2]) < 60.0  # a PSNR in dB, not a loss
     # a second run in a fresh out dir with the same checkpoint dir resumes from step 20: identical bytes
     ctx2 = Ctx(tmp_path, "coarse")
     ctx2.out_dir = tmp_path / "coarse_again"
@@ -133,7 +136,7 @@ def test_steps_end_to_end(tmp_path):
     assert ctx.records["source"] == "coarse"
 
     ctx = Ctx(tmp_path, "turntable")
-    turntable.run(ctx, inputs, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4})
+    turntable.run(ctx, inputs, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4, "path_frames": 3})
     import imageio.v3 as iio
 
     frames = iio.imread(ctx.out_dir / "turntable.gif", index=None)
@@ -141,6 +144,16 @@ def test_steps_end_to_end(tmp_path):
     sheet = iio.imread(ctx.out_dir / "contact_sheet.png")
     assert sheet.shape[0] > 24 and sheet.shape[1] > 4 * 24
     assert frames.std() > 1.0  # the object is visible, not a blank background
+    # the video along the camera path: 3 frames between consecutive training cameras, same bytes again
+    import imageio_ffmpeg
+
+    n_train = len(load_scene_artifact(inputs["scene"]).train)
+    assert imageio_ffmpeg.count_frames_and_secs(str(ctx.out_dir / "camera_path.mp4"))[0] == 3 * n_train
+    again = Ctx(tmp_path, "turntable2")
+    turntable.run(
+        again, inputs, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4, "path_frames": 3}
+    )
+    assert (again.out_dir / "camera_path.mp4").read_bytes() == (ctx.out_dir / "camera_path.mp4").read_bytes()
 
 
 def test_mask_step_rejects_bad_choices(tmp_path):

@@ -335,5 +335,6 @@ def repair_gaussians(
         "refreshes_made": cache.made,
         "l_rep_log": log[-20:],
         "cache": cache,
+        "loss_log": stats.loss_log,  # every logged step (restored on resume): the training curves
     }
     return result, summary, facts

@@ -190,10 +190,11 @@ def _assets(report: dict, out_dir: Path) -> dict[str, str]:
     assets: dict[str, str] = {}
     if plot_test_grid(report, out_dir / "test_grid.png"):
         assets["grid"] = "test_grid.png"
-    turntable = report.get("images", {}).get("turntable")
-    if turntable and Path(turntable).is_file():
-        shutil.copyfile(turntable, out_dir / "turntable.gif")
-        assets["turntable"] = "turntable.gif"
+    for key, name in (("turntable", "turntable.gif"), ("camera_path", "camera_path.mp4")):
+        found = report.get("images", {}).get(key)
+        if found and Path(found).is_file():
+            shutil.copyfile(found, out_dir / name)
+            assets[key] = name
     if plot_curves(report, out_dir / "curves.png"):
         assets["curves"] = "curves.png"
     if plot_steps(report, out_dir / "steps.png"):
@@ -285,6 +286,8 @@ def write_markdown(report: dict, out_dir: Path) -> Path:
         lines += ["## Test views", "", GRID_CAPTION, "", f"![test views]({assets['grid']})", ""]
     if "turntable" in assets:
         lines += ["## Turntable", "", f"![turntable]({assets['turntable']})", ""]
+    if "camera_path" in assets:
+        lines += [f"Video along the camera path: [{assets['camera_path']}]({assets['camera_path']})", ""]
     if "curves" in assets:
         lines += ["## Training curves", "", f"![training curves]({assets['curves']})", ""]
     if vr:
@@ -302,7 +305,8 @@ def write_markdown(report: dict, out_dir: Path) -> Path:
 def _data_uri(path: Path) -> str:
     import base64
 
-    kind = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg"}.get(path.suffix, "image/png")
+    kinds = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4"}
+    kind = kinds.get(path.suffix, "image/png")
     return f"data:{kind};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
@@ -334,10 +338,17 @@ def html_report(report: dict) -> str:
         *[f"<li>{e(x)}</li>" for x in _summary_lines(report)],
         "</ul>",
     ]
-    for title, key in (("Test views", "grid"), ("Turntable", "turntable")):
-        if key in uris:
-            caption = GRID_CAPTION if key == "grid" else ""
-            parts.append(f"<h2>{title}</h2><p>{e(caption)}</p><img src='{uris[key]}'>")
+    if "grid" in uris:
+        parts.append(f"<h2>Test views</h2><p>{e(GRID_CAPTION)}</p><img src='{uris['grid']}'>")
+    if "turntable" in uris or "camera_path" in uris:
+        parts.append("<h2>Turntable and camera path</h2><p>")
+        if "turntable" in uris:
+            parts.append(f"<img src='{uris['turntable']}' alt='turntable'> ")
+        if "camera_path" in uris:
+            parts.append(
+                f"<video src='{uris['camera_path']}' controls loop muted autoplay playsinline></video>"
+            )
+        parts.append("</p>")
     if "curves" in uris:
         parts.append(f"<h2>Training curves</h2><img src='{uris['curves']}'>")
     if vr:

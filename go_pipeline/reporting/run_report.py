@@ -130,13 +130,14 @@ def build_report(
     files = {}
     for label, step, name in (
         ("turntable", "turntable", "turntable.gif"),
+        ("camera_path", "turntable", "camera_path.mp4"),
         ("curves_coarse", "coarse", "curves.csv"),
         ("curves_repair", "repair", "curves.csv"),
         ("model_ply", "export", "point_cloud.ply"),
     ):
         found = store.artifact_dir(wd, step) if step in manifests else None
         if found is not None and (found / name).is_file():
-            (images if label == "turntable" else files)[label] = str(found / name)
+            (images if label in ("turntable", "camera_path") else files)[label] = str(found / name)
     return {
         "schema": REPORT_SCHEMA_ID,
         "version": REPORT_VERSION,
