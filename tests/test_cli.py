@@ -181,6 +181,17 @@ def test_run_example_end_to_end(tmp_path, toy):
     assert done.returncode == 0, done.stderr[-3000:]
     again = toy.cli("run", "--example", "--workdir", str(tmp_path / "ex"))
     assert again.returncode == 0 and "running" not in again.stderr
+    # the work dir remembers the example profile: status and a plain run are up to date
+    scene = tmp_path / "ex" / "basket"
+    status = toy.cli("status", str(scene))
+    assert status.stdout.splitlines()[-1] == "everything is up to date", status.stdout
+    plain = toy.cli("run", str(scene))
+    assert "everything is up to date" in plain.stderr and "running" not in plain.stderr
+    # findable results: the model and its metrics, the paths, the next command
+    assert done.stdout.startswith("result: the coarse model") and "test views: PSNR " in done.stdout
+    for name in ("model.ply", "turntable.gif", "camera_path.mp4", "metrics.json", "report.html"):
+        assert (scene / ".go" / "outputs" / name).is_file(), name
+    assert "next: " in plain.stdout
 
 
 def test_example_scene_is_copied_once(tmp_path):

@@ -67,8 +67,9 @@ def main(args: argparse.Namespace) -> int:
             print(text)
             return 0
         from go_core.io.atomic import atomic_write_text
+        from go_pipeline.outputs import readable
 
-        path = atomic_write_text(out if as_file else out / "report.json", text + "\n")
+        path = readable(atomic_write_text(out if as_file else out / "report.json", text + "\n"))
         print(path)
         return 0
     from go_pipeline.reporting.render import write_html, write_markdown
@@ -77,5 +78,7 @@ def main(args: argparse.Namespace) -> int:
     path = (write_markdown if fmt == "md" else write_html)(report, folder)
     if as_file and path != out:
         path = path.replace(out)
-    print(path)
+    from go_pipeline.outputs import readable
+
+    print(readable(path))
     return 0

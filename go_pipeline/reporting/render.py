@@ -130,6 +130,8 @@ def plot_test_grid(report: dict, path: Path) -> Path | None:
                 ax.axis("on")
                 ax.set_xticks([])
                 ax.set_yticks([])
+                for spine in ax.spines.values():
+                    spine.set_visible(False)
                 ax.set_ylabel(ROW_LABELS[r], fontsize=8)
     bar = fig.colorbar(
         ScalarMappable(Normalize(0.0, ERROR_VMAX), colormaps["magma"]),
@@ -320,17 +322,18 @@ def html_report(report: dict) -> str:
     sh, sr, vh, vr = _tables(report)
     e = html.escape
 
-    def table(head, rows):
+    def table(head, rows, css=""):
         h = "".join(f"<th>{e(c)}</th>" for c in head)
         body = "".join("<tr>" + "".join(f"<td>{e(c)}</td>" for c in row) + "</tr>" for row in rows)
-        return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
+        return f"<table class='{css}'><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
 
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>Run report: {e(report['scene']['name'])}</title>",
         "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse}"
         "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}td:first-child{text-align:left}"
-        "img{max-width:100%}.warn{background:#fdd;border:2px solid #c00;padding:.5em 1em}</style>"
+        "img{max-width:100%}.steps td:nth-child(2){text-align:left}"
+        ".warn{background:#fdd;border:2px solid #c00;padding:.5em 1em}</style>"
         "</head><body>",
         f"<h1>Run report: {e(report['scene']['name'])}</h1><p>Generated {e(report['generated'])}.</p>",
         *[f"<p class='warn'>{e(w)}</p>" for w in report.get("warnings", [])],
@@ -355,7 +358,7 @@ def html_report(report: dict) -> str:
         parts.append("<h2>Metrics per test view</h2>" + table(vh, vr))
         if "views" in uris:
             parts.append(f"<p><img src='{uris['views']}'></p>")
-    parts.append("<h2>Steps</h2>" + table(sh, sr))
+    parts.append("<h2>Steps</h2>" + table(sh, sr, "steps"))
     if "steps" in uris:
         parts.append(f"<p><img src='{uris['steps']}'></p>")
     parts.append("</body></html>")
