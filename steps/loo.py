@@ -93,8 +93,19 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
                 fut.result()
                 progress.advance()
     else:
+        total = settings.phase1_iterations + settings.phase2_iterations
         for k in pending:
-            run_one(k, views, init, settings, ctx.seed, run_dirs[k], extent)
+            inner: dict = {}
+
+            def tick(step: int, info: dict, k: int = k, inner: dict = inner) -> None:
+                if "bar" not in inner:  # created at the first step run: a resumed run starts where it was
+                    what = f"run {k + 1}/{len(views)} (without {views[k].camera.name})"
+                    inner["bar"] = ctx.progress(total, what, completed=step - 1)
+                inner["bar"].advance(1, loss=info["loss"], gaussians=info["n"])
+
+            run_one(k, views, init, settings, ctx.seed, run_dirs[k], extent, on_progress=tick)
+            if "bar" in inner:
+                inner["bar"].close()
             progress.advance()
     progress.close()
 

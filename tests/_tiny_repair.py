@@ -28,11 +28,14 @@ def tiny_weights(root: Path) -> dict[str, str]:
 
 
 class FakeProgress:
-    def __init__(self) -> None:
+    def __init__(self, total: int = 0, description: str = "") -> None:
         self.n = 0
+        self.total, self.description = total, description
+        self.fields: dict = {}
 
     def advance(self, n: int = 1, **fields) -> None:
         self.n += n
+        self.fields.update(fields)
 
     def close(self) -> None:
         pass
@@ -53,9 +56,13 @@ class FakeCtx:
         self.device = "cpu"
         self.log = logging.getLogger(f"test.{step}")
         self.records: dict = {}
+        self.bars: list[FakeProgress] = []
 
     def progress(self, total: int, description: str = "", completed: int = 0) -> FakeProgress:
-        return FakeProgress()
+        bar = FakeProgress(total, description)
+        bar.n = completed
+        self.bars.append(bar)
+        return bar
 
     def record(self, **values) -> None:
         self.records.update(values)

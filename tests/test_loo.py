@@ -39,6 +39,11 @@ def test_loo_pairs_and_statistics(done):
     info = json.loads((ctx.out_dir / "loo.json").read_text())
     assert len(info["runs"]) == 4 and len(info["pairs"]) == 4 * 3
     assert ctx.records["runs"] == 4 and ctx.records["pairs"] == 12
+    # progress: one bar per run over both phases (with loss and Gaussian count), and one over the runs
+    inner = [b for b in ctx.bars if b.description.startswith("run ")]
+    assert [(b.n, b.total) for b in inner] == [(30, 30)] * 4
+    assert inner[0].description.startswith("run 1/4 (without ") and inner[0].fields["gaussians"] > 0
+    assert [(b.n, b.total) for b in ctx.bars if b not in inner] == [(4, 4)]
     with np.load(ctx.out_dir / "loo_pairs.npz") as data:
         for p in info["pairs"]:
             deg, clean = data[p["degraded"]], data[p["clean"]]

@@ -90,9 +90,17 @@ def _save_npy(path: Path, a: np.ndarray) -> None:
 
 
 def run_one(
-    index: int, views: list, init: Gaussians, settings: LooSettings, seed: int, run_dir: Path, extent: float
+    index: int,
+    views: list,
+    init: Gaussians,
+    settings: LooSettings,
+    seed: int,
+    run_dir: Path,
+    extent: float,
+    on_progress=None,
 ) -> LooRun:
-    """Run (or resume, or just load) the leave-one-out run for view ``index``."""
+    """Run (or resume, or just load) the leave-one-out run for view ``index``. ``on_progress(step, info)``
+    after each iteration, counting phase 1 then phase 2 (``optimize``'s info: loss, n, ...)."""
     from go_core.floaters import FloaterConfig
     from go_core.training import CheckpointSpec, CoarseConfig, NoDensify, optimize
 
@@ -125,6 +133,7 @@ def run_one(
             generator=gen,
             extent=extent,
             checkpoint=CheckpointSpec(run_dir / "phase1", every=settings.checkpoint_every),
+            on_progress=on_progress,
         )
         from go_core.io.atomic import atomic_torch_save
 
@@ -155,6 +164,9 @@ def run_one(
             extra_loss=hook,
             start_sh_degree=settings.sh_degree,
             checkpoint=CheckpointSpec(run_dir / "phase2", every=settings.checkpoint_every),
+            on_progress=None
+            if on_progress is None
+            else lambda step, info: on_progress(settings.phase1_iterations + step, info),
         )
         info["phase2_final_loss"] = stats2.loss_log[-1]["loss"] if stats2.loss_log else None
     else:
