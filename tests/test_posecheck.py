@@ -158,3 +158,17 @@ def test_blame_logic_for_disagreeing_pairs():
         _blame_inconsistent_pairs(3, {**dict.fromkeys(ok, 0.2), (0, 1): 5.0}, {(1, 2): None, (0, 2): None}, 1)
         == {}
     )
+
+
+@pytest.mark.parametrize("scene_name", ["milk", "plate"])
+def test_four_training_views_check_what_they_can(shared_data, scene_name):
+    """`poses --split train`: 4 views 83-140° apart. milk's SIFT matches across them are repeated texture
+    (they disagree with the correct poses), plate has none: neither may be flagged; the masks agree. A
+    camera turned by 5° is caught by the masks."""
+    views = load_scene(shared_data / "dev" / scene_name).train
+    report = check_poses(views)
+    assert report.ok and not report.flagged, [(r.name, r.reason) for r in report.images]
+    assert report.unverified == [v.name for v in views]
+    assert report.masks_consistent and min(r.mask_coverage for r in report.images) > 0.99
+    bad = check_poses(rotated(views, 1, 5.0))
+    assert not bad.ok and bad.masks_consistent is False and "masks disagree" in bad.mask_problem

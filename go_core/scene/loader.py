@@ -55,6 +55,23 @@ def _check_duplicates(train: list[ViewSpec], test: list[ViewSpec], problems: Pro
             names[s.camera.name] = split
 
 
+def _not_a_scene_message(root: Path) -> str:
+    """What is missing, and for a folder of plain photos the command that estimates their poses."""
+    from go_core.io.images import IMAGE_EXTENSIONS
+
+    msg = f"not a scene folder: no {TRAIN_FILE} (NeRF-synthetic) and no sparse/0 (COLMAP)"
+    for folder in (root, root / "images"):
+        photos = [f for f in folder.iterdir() if f.suffix in IMAGE_EXTENSIONS] if folder.is_dir() else []
+        if photos:
+            out = folder / TRAIN_FILE if folder == root else root / TRAIN_FILE
+            msg += (
+                f". It holds {len(photos)} photos without poses: estimate them with "
+                f"`go-pipeline poses {folder} --estimate {out}`"
+            )
+            break
+    return msg
+
+
 def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) -> Scene | None:
     """Read a scene, reporting every problem to ``problems``; None when nothing usable was read."""
     root = Path(path)
@@ -66,7 +83,7 @@ def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) 
         return None
     fmt = detect_format(root)
     if fmt is None:
-        problems.add(f"not a scene folder: no {TRAIN_FILE} (NeRF-synthetic) and no sparse/0 (COLMAP)", root)
+        problems.add(_not_a_scene_message(root), root)
         return None
     if fmt == "nerf":
         train_specs, test_specs = read_nerf_specs(root, problems)

@@ -34,14 +34,23 @@ def add_parser(subparsers) -> None:
         type=Path,
         default=None,
         metavar="OUT.json",
-        help="no poses given: run pycolmap SfM on the images and write NeRF-style transforms here",
+        help="no poses given: run pycolmap SfM on the images, verify the result and write NeRF-style "
+        "transforms here (nothing is written when a check fails; --json writes the checks)",
     )
+    p.add_argument(
+        "--allow-unregistered",
+        action="store_true",
+        help="with --estimate: write the poses of the registered images even when some could not be",
+    )
+    p.add_argument("--strict", action="store_true", help="exit 1 when any view could not be verified")
     p.set_defaults(func=main)
 
 
 def _image_views(folder: Path) -> list:
     from go_core.io.images import IMAGE_EXTENSIONS, read_image, split_rgb_alpha
 
+    if not folder.is_dir():
+        raise GoError("not a folder of images", folder)
     files = sorted(f for f in folder.iterdir() if f.suffix in IMAGE_EXTENSIONS)
     if len(files) < 3:
         raise GoError(f"found {len(files)} images; SfM needs at least 3", folder)
@@ -52,64 +61,136 @@ def _image_views(folder: Path) -> list:
     return views
 
 
-def estimate(folder: Path, out: Path, threads: int) -> int:
-    from go_core.io.atomic import atomic_write_json
-    from go_core.posecheck import estimate_poses
+def _transforms(views: list, cams: dict, out: Path) -> dict:
+    """NeRF-style transforms; each ``file_path`` is relative to the JSON's folder, without the extension."""
+    import os
 
-    views = _image_views(folder)
-    cams = estimate_poses(views, num_threads=threads)
     first = next(iter(cams.values()))
+    base = out.resolve().parent
     frames = [
-        {"file_path": Path(v.name).stem, "transform_matrix": cams[v.name].opengl_c2w.tolist()}
+        {
+            "file_path": Path(os.path.relpath(v.source.resolve().with_suffix(""), base)).as_posix(),
+            "transform_matrix": cams[v.name].opengl_c2w.tolist(),
+        }
         for v in views
         if v.name in cams
     ]
-    atomic_write_json(
-        out,
-        {
-            "camera_angle_x": 2 * math.atan(first.width / (2 * first.K[0, 0])),
-            "fl_x": float(first.K[0, 0]),
-            "fl_y": float(first.K[1, 1]),
-            "cx": float(first.K[0, 2]),
-            "cy": float(first.K[1, 2]),
-            "w": first.width,
-            "h": first.height,
-            "frames": frames,
-            "note": "pycolmap incremental SfM: arbitrary world frame and scale",
-        },
+    return {
+        "camera_angle_x": 2 * math.atan(first.width / (2 * first.K[0, 0])),
+        "fl_x": float(first.K[0, 0]),
+        "fl_y": float(first.K[1, 1]),
+        "cx": float(first.K[0, 2]),
+        "cy": float(first.K[1, 2]),
+        "w": first.width,
+        "h": first.height,
+        "frames": frames,
+        "note": "pycolmap incremental SfM: arbitrary world frame and scale",
+    }
+
+
+def estimate(folder: Path, out: Path, threads: int, allow_unregistered: bool, report: Path | None) -> int:
+    """SfM, then ``verify_poses`` on the result: the transforms are written only when every check passes."""
+    from go_core.io.atomic import atomic_write_json
+    from go_core.pose_verify import verify_poses
+    from go_core.posecheck import PoseCheckError, reconstruct
+
+    views = _image_views(folder)
+    try:
+        sfm = reconstruct(views, num_threads=threads)
+    except PoseCheckError as exc:
+        raise GoError(f"could not estimate poses: {exc}", folder) from exc
+    registered = [v for v in views if v.name in sfm.cameras]
+    missing = [v.name for v in views if v.name not in sfm.cameras]
+    masks = [v.mask for v in registered] if all(v.mask is not None for v in registered) else None
+    verdict = verify_poses(
+        [sfm.cameras[v.name] for v in registered],
+        masks,
+        mean_reprojection_px=sfm.mean_reprojection_px,
+        observations=sfm.observations,
     )
-    missing = [v.name for v in views if v.name not in cams]
-    print(f"registered {len(cams)} of {len(views)} images -> {out}")
-    if missing:
-        print("not registered: " + ", ".join(missing))
+    if missing and not allow_unregistered:
+        verdict.problems.insert(
+            0,
+            f"{len(missing)} of {len(views)} images could not be registered: {', '.join(missing)} "
+            "(too few matches with the others; --allow-unregistered writes the rest)",
+        )
+    print(f"registered {len(registered)} of {len(views)} images; {sfm.num_points} points")
+    cov = verdict.mask_coverage
+    print(
+        f"checks: rotation spread {verdict.rotation_spread_deg:.1f}°, mean reprojection error "
+        f"{sfm.mean_reprojection_px:.2f} px, fewest points per image {verdict.min_observations}, "
+        + ("masks not checked (none)" if cov is None else f"lowest mask coverage {min(cov.values()):.3f}")
+    )
+    if report is not None:
+        from go_core.io.atomic import atomic_write_text
+
+        d = {"registered": [v.name for v in registered], "not_registered": missing, **verdict.to_dict()}
+        atomic_write_text(report, json.dumps(d, indent=2, sort_keys=True) + "\n")
+    if verdict.problems:
+        print(f"POSES NOT WRITTEN: the estimate failed {len(verdict.problems)} check(s):")
+        for p in verdict.problems:
+            print(f"  - {p}")
+        return 1
+    for note in verdict.notes:
+        print(f"note: {note}")
+    atomic_write_json(out, _transforms(views, sfm.cameras, out))
+    print(f"poses -> {out}")
     return 0
+
+
+def _print_report(report) -> None:
+    head = f"{'view':<28}{'pairs ok/verified':>18}{'obs':>6}{'median px':>11}{'p90 px':>9}{'mask cov':>10}"
+    print(head + "  status")
+    for r in report.images:
+        med = "-" if r.median_px is None else f"{r.median_px:.2f}"
+        p90 = "-" if r.p90_px is None else f"{r.p90_px:.2f}"
+        cov = "-" if r.mask_coverage is None else f"{r.mask_coverage:.3f}"
+        pairs = f"{r.consistent_pairs}/{r.verified_pairs}"
+        print(f"{r.name:<28}{pairs:>18}{r.observations:>6}{med:>11}{p90:>9}{cov:>10}  {r.status} {r.reason}")
+    print(
+        f"{report.num_verified_pairs} verified pairs, {report.num_tracks} tracks, "
+        f"{report.wide_pairs_ignored} disagreeing wide-baseline pairs ignored; "
+        f"{len(report.flagged)} flagged, {len(report.unverified)} unverified"
+    )
+    for note in report.notes:
+        print(f"note: {note}")
 
 
 def main(args: argparse.Namespace) -> int:
     if args.estimate is not None:
-        return estimate(args.scene, args.estimate, args.threads)
+        return estimate(args.scene, args.estimate, args.threads, args.allow_unregistered, args.json)
     from go_core.posecheck import check_poses
     from go_core.scene import load_scene
 
     scene = load_scene(args.scene)
     views = {"train": scene.train, "test": scene.test, "all": scene.train + scene.test}[args.split]
+    if len(views) < 2:
+        raise GoError(f"the {args.split} split has {len(views)} view(s); the check needs 2", args.scene)
     report = check_poses(views, threshold_px=args.threshold, num_threads=args.threads)
-    print(f"{'view':<28}{'pairs ok/verified':>18}{'obs':>6}{'median px':>11}{'p90 px':>9}  status")
-    for r in report.images:
-        med = "-" if r.median_px is None else f"{r.median_px:.2f}"
-        p90 = "-" if r.p90_px is None else f"{r.p90_px:.2f}"
-        pairs = f"{r.consistent_pairs}/{r.verified_pairs}"
-        print(f"{r.name:<28}{pairs:>18}{r.observations:>6}{med:>11}{p90:>9}  {r.status} {r.reason}")
-    print(
-        f"{report.num_verified_pairs} verified pairs, {report.num_tracks} tracks; "
-        f"{len(report.flagged)} flagged, {len(report.unverified)} unverified"
-    )
+    _print_report(report)
     if args.json is not None:
         from go_core.io.atomic import atomic_write_text
 
         atomic_write_text(args.json, json.dumps(report.to_dict(), indent=2, sort_keys=True) + "\n")
+    if report.masks_consistent is None:
+        print("masks: not checked")
+    elif report.masks_consistent:
+        cov = min(r.mask_coverage for r in report.images)
+        print(f"masks: consistent with the poses (lowest coverage {cov:.3f})")
+    else:
+        print(f"MASKS DISAGREE: {report.mask_problem}")
     if report.flagged:
         print("POSES FLAGGED: " + ", ".join(report.flagged))
+    if not report.ok:
         return 1
-    print("poses OK" + (" (some views could not be verified)" if report.unverified else ""))
-    return 0
+    checked = len(views) - len(report.unverified)
+    if checked == 0:
+        why = "no view could be checked with features"
+        if args.split != "all" and scene.train and scene.test:
+            why += " (--split all adds the scene's other views as evidence)"
+        masks = "; the masks agree with the poses" if report.masks_consistent else ""
+        print(f"poses NOT verified by features: {why}{masks}")
+    else:
+        extra = f" ({len(report.unverified)} view(s) could not be verified)" if report.unverified else ""
+        print(f"poses OK: {checked} of {len(views)} views verified by features{extra}")
+    return 1 if args.strict and report.unverified else 0
