@@ -125,8 +125,11 @@ def test_estimate_command_refuses_degenerate_results(tmp_path, monkeypatch, caps
     else:
         est = cams[:3]
     names = [f"r_{i}.png" for i in range(len(est))]
+    cams_by_name = {}
+    for n, c in zip(names, est, strict=True):
+        cams_by_name[n] = Camera(n, c.width, c.height, c.K, c.world_to_cam)
     result = posecheck.SfmResult(
-        cameras={n: Camera(n, c.width, c.height, c.K, c.world_to_cam) for n, c in zip(names, est, strict=True)},
+        cameras=cams_by_name,
         mean_reprojection_px=0.3,
         observations=dict.fromkeys(names, 150),
         num_points=300,
