@@ -29,6 +29,7 @@ def test_run_remembers_profile_set_and_seed(toy):
     # status and a plain run use the remembered settings: nothing is stale
     status = toy.cli("status", str(toy.scene), *base)
     assert status.stdout.splitlines()[-1] == "everything is up to date"
+    assert status.stderr.startswith("settings (") and "profile quick, seed 3, --set none" in status.stderr
     again = toy.cli("run", str(toy.scene), *base)
     assert "everything is up to date" in again.stderr and "running" not in again.stderr
     # a changed flag says what it changes before running, and is remembered

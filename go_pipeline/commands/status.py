@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from go_pipeline.commands._common import add_pipeline_args, settings_from
 
@@ -22,7 +23,7 @@ def main(args: argparse.Namespace) -> int:
     from go_pipeline.runner import pipeline_status
 
     workdir = store.workdir_for(args.scene, args.workdir)
-    _, settings = settings_from(args, workdir)  # the work dir's remembered profile / --set / seed
+    saved, settings = settings_from(args, workdir)  # the work dir's remembered profile / --set / seed
     rows = pipeline_status(
         args.scene,
         workdir=args.workdir,
@@ -35,6 +36,13 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps([row.__dict__ for row in rows], indent=2))
         return 0
+    if saved is not None or settings.profile or settings.sets:
+        sets = ", ".join(f"{k}={v}" for k, v in settings.sets.items()) or "none"
+        where = f" ({workdir / 'params.yaml'} and the flags given)" if saved is not None else ""
+        print(
+            f"settings{where}: profile {settings.profile or '(none)'}, seed {settings.seed}, --set {sets}",
+            file=sys.stderr,
+        )
     width = max(len(r.step) for r in rows)
     for r in rows:
         why = f"  ({r.reason})" if r.reason else ""
