@@ -342,7 +342,7 @@ def _run_one(
         display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
         return StepResult(name, status, key, final, True, 0.0, record)
 
-    from go_pipeline.skipping import cascade_skip, write_skipped_outputs
+    from go_pipeline.skipping import cascade_skip, short_reason, write_skipped_outputs
 
     display.open_log()
     skip = cascade_skip(_module_file(spec), spec.inputs, done)
@@ -443,7 +443,8 @@ def _run_one(
     done[name] = manifest
     status = "skipped" if result.records.get("status") == "skipped" else "ran"
     reason = str(result.records.get("reason") or "") if status == "skipped" else ""
-    extra = f" ({reason[:77] + '...' if len(reason) > 80 else reason})" if reason else ""
+    # a long reason was logged in full by the step: its first clause here ("repair model weights missing")
+    extra = f" ({short_reason(reason) if len(reason) > 80 else reason})" if reason else ""
     if skip is not None:
         display.log.info(f"  {name:<12} skipped  {key[:12]} {'(no worker)':>34}{extra}")
     else:
