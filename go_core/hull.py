@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from go_core.camera import Camera
 from go_core.errors import EmptyHullError
 from go_core.gaussians import Gaussians
+from go_core.seeding import numpy_rng
 
 
 @dataclass
@@ -176,7 +177,7 @@ def visual_hull(
     min_views = n - 1 if (all_but_one and n > 1) else n
     masks = [np.asarray(m, np.float32) for m in masks]
     lo, hi = hull_bounds(cameras, masks, min_views=min_views, threshold=threshold)
-    rng = np.random.default_rng(seed)
+    rng = numpy_rng(seed)
     kept: list[np.ndarray] = []
     got = drawn = 0
     while got < num_points and drawn < max_samples:
@@ -243,6 +244,6 @@ def random_init(
     bbox_min: np.ndarray, bbox_max: np.ndarray, num_points: int, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """The vanilla-3DGS ablation: uniform random points (random colours) in a box."""
-    rng = np.random.default_rng(seed)
+    rng = numpy_rng(seed)
     pts = bbox_min + rng.random((num_points, 3)) * (bbox_max - bbox_min)
     return pts, rng.random((num_points, 3)).astype(np.float32)

@@ -1,7 +1,8 @@
 """Content hashes and cache keys.
 
 * ``canonical_json``: the one JSON spelling hashed into keys (sorted keys, no spaces, exact floats).
-* ``cache_key``: sha256 of the step name, VERSION, resolved params, seed and its inputs' content hashes.
+* ``cache_key``: sha256 of the step name, its code (go_pipeline.codehash), an optional VERSION override,
+  resolved params, seed and its inputs' content hashes.
 * ``files_hash``: content hash of a set of files (relative name + bytes), used for artifacts and the scene.
 * ``FileHashCache``: per-file sha256 remembered by (relative path, size, mtime_ns), so a no-op run over
   an unchanged scene folder only stats its files.
@@ -39,9 +40,25 @@ def combine_file_hashes(file_hashes: dict[str, str]) -> str:
     return h.hexdigest()
 
 
-def cache_key(step: str, version: str, params: dict[str, Any], seed: int, inputs: dict[str, str]) -> str:
-    """``inputs`` maps input name -> content hash of that input (an artifact or the scene folder)."""
-    material = {"step": step, "version": version, "params": params, "seed": int(seed), "inputs": inputs}
+def cache_key(
+    step: str,
+    version: str | None,
+    params: dict[str, Any],
+    seed: int,
+    inputs: dict[str, str],
+    code: str = "",
+) -> str:
+    """``inputs`` maps input name -> content hash of that input (an artifact or the scene folder);
+    ``code`` is the digest of the source files the step runs; ``version`` the module's optional VERSION
+    override (None when it defines none)."""
+    material = {
+        "step": step,
+        "version": version,
+        "code": code,
+        "params": params,
+        "seed": int(seed),
+        "inputs": inputs,
+    }
     return hashlib.sha256(canonical_json(material).encode("utf-8")).hexdigest()
 
 

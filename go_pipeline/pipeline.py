@@ -191,8 +191,11 @@ def check_param_type(default: Any, value: Any, what: str, path: Path | str | Non
     return value
 
 
-def read_step_version(module: str, path: Path | str, step: str) -> str:
-    """The module's ``VERSION = "..."``, read from its source with ast (no import)."""
+def read_step_version(module: str, path: Path | str, step: str) -> str | None:
+    """The module's optional ``VERSION = "..."`` override, read from its source with ast (no import).
+
+    A step's code is part of its key anyway (go_pipeline.codehash); VERSION only forces a rerun when the
+    output must change without any code change (e.g. a model file changed under the same name)."""
     source_file = _module_source(module, path, step)
     tree = ast.parse(source_file.read_text(encoding="utf-8"), filename=str(source_file))
     for node in tree.body:
@@ -207,7 +210,7 @@ def read_step_version(module: str, path: Path | str, step: str) -> str:
             if isinstance(node.value, ast.Constant) and isinstance(node.value.value, (str, int)):
                 return str(node.value.value)
             raise PipelineError(f"step {step!r}: VERSION in {source_file} must be a string literal", path)
-    raise PipelineError(f"step {step!r}: module {module} ({source_file}) defines no VERSION", path)
+    return None
 
 
 def _module_source(module: str, path: Path | str, step: str) -> Path:

@@ -19,6 +19,7 @@ from typing import Any
 
 from go_core.errors import GoError, PipelineError, SceneError
 from go_pipeline import store
+from go_pipeline.codehash import CodeFingerprint, changed_files, fingerprint
 from go_pipeline.hashing import FileHashCache, cache_key, combine_file_hashes, folder_hashes
 from go_pipeline.pipeline import SCENE_INPUT, Pipeline, StepSpec, load_pipeline, read_step_version
 
@@ -90,7 +91,8 @@ class StatusRow:
 class _Plan:
     pipeline: Pipeline
     params: dict[str, dict[str, Any]]
-    versions: dict[str, str]
+    versions: dict[str, str | None]  # the optional VERSION override of each step module
+    code: dict[str, CodeFingerprint]  # the source files each step runs
     scene_dir: Path
     workdir: Path
     seed: int
@@ -114,7 +116,8 @@ def _plan(
     params = pipeline.resolve_params(profile, overrides)
     names = list(pipeline.steps) if steps is None else list(steps)
     versions = {n: read_step_version(pipeline.steps[n].module, pipeline.path, n) for n in names}
-    return _Plan(pipeline, params, versions, scene, store.workdir_for(scene, workdir), int(seed))
+    code = {n: fingerprint(pipeline.steps[n].module) for n in names}
+    return _Plan(pipeline, params, versions, code, scene, store.workdir_for(scene, workdir), int(seed))
 
 
 def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
@@ -153,6 +156,7 @@ def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
         plan.params[name],
         plan.seed,
         {k: v["content_hash"] for k, v in inputs.items()},
+        code=plan.code[name].digest,
     )
 
 
@@ -411,6 +415,7 @@ def _run_one(
             step=name,
             key=key,
             version=plan.versions[name],
+            code=plan.code[name].files,
             seed=plan.seed,
             params=plan.params[name],
             inputs=inputs,
@@ -583,8 +588,12 @@ def _what_changed(
     plan: _Plan, name: str, previous: dict[str, Any], inputs: dict[str, dict[str, Any]] | None
 ) -> list[str]:
     reasons: list[str] = []
-    if str(previous.get("version")) != plan.versions[name]:
+    if previous.get("version") != plan.versions[name]:
         reasons.append(f"version changed {previous.get('version')} -> {plan.versions[name]}")
+    changed = changed_files(previous.get("code"), plan.code[name].files)
+    if changed:
+        more = f" (+{len(changed) - 3} more)" if len(changed) > 3 else ""
+        reasons.append(f"code changed: {', '.join(changed[:3])}{more}")
     old_params, new_params = previous.get("params") or {}, plan.params[name]
     for p in sorted(set(old_params) | set(new_params)):
         if old_params.get(p, "<unset>") != new_params.get(p, "<unset>"):

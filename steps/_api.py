@@ -1,7 +1,8 @@
 """The contract between the runner and a step function.
 
-A step module exposes ``VERSION: str`` (bump it when its output would change for the same inputs: it is
-part of the cache key) and ``run(ctx: StepContext, inputs: dict[str, Path], params: dict) -> None``.
+A step module exposes ``run(ctx: StepContext, inputs: dict[str, Path], params: dict) -> None``. Its source
+and that of every go_core module it imports are part of the cache key (go_pipeline.codehash); an optional
+``VERSION = "..."`` forces a rerun without a code change.
 
 * ``inputs`` maps the input names declared in pipeline.yaml to the upstream artifact folders (read-only);
   the special value ``"@scene"`` in pipeline.yaml passes the raw scene folder (only the ``scene`` ingest

@@ -13,19 +13,14 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-import torch
-
 from go_core.depth_prior import load_depth_priors
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write_json
 from go_core.io.curves import write_curves
 from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
+from go_core.seeding import torch_generator
 from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
-
-# 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam; 5: regularisers and
-# the budget knob (schedules scaled with iterations)
-VERSION = "5"
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
@@ -41,7 +36,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         TrainView.from_arrays(v.camera, v.image, m, depths[i] if depths is not None else None)
         for i, (v, m) in enumerate(zip(scene.train, masks, strict=True))
     ]
-    generator = torch.Generator().manual_seed(int(ctx.seed))
+    generator = torch_generator(int(ctx.seed))  # the run's seed itself (derive_seed without tags)
     state: dict = {"bar": None}
 
     def progress(step: int, info: dict) -> None:

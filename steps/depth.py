@@ -11,8 +11,6 @@ from go_core.depth_prior import DEPTH_JSON, DepthEstimator, save_depth_priors
 from go_core.io.atomic import atomic_write_json
 from go_core.scene.artifact import load_scene_artifact
 
-VERSION = "1"
-
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     model_path = str(params.get("model_path", "") or "")

@@ -21,7 +21,6 @@ import numpy as np
 from go_core.io.atomic import atomic_write, atomic_write_json
 from go_core.metrics.evaluate import MetricSuite, composite, error_map, mean_metrics
 
-VERSION = "2"  # 2: metrics.json names the repair model
 METRICS_SCHEMA = "go-pipeline/metrics"
 
 

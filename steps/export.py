@@ -9,8 +9,6 @@ from go_pipeline.steps._common import final_model_path
 from go_core.gaussians import Gaussians
 from go_core.ply import PLY_SH_DEGREE, save_ply
 
-VERSION = "1"
-
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     path, source = final_model_path(inputs)

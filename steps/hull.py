@@ -18,8 +18,6 @@ from go_core.io.atomic import atomic_write_json
 from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
 
-VERSION = "1"
-
 
 def random_box(cameras) -> tuple[np.ndarray, np.ndarray]:
     """Cube around the look-at point: half-size = mean camera distance × tan(half the narrower FOV)."""

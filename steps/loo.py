@@ -28,7 +28,6 @@ from go_core.io.atomic import atomic_write_json
 from go_core.repair.loo import LooSettings, load_run, run_job, run_one
 from go_core.repair.noise import difference_stats
 
-VERSION = "4"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 

@@ -33,7 +33,6 @@ from go_pipeline.steps.weights import compact_info, repair_model, weight_paths
 
 from go_core.io.atomic import atomic_write_json
 
-VERSION = "2"  # 2: the compact repair model
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 

@@ -15,7 +15,6 @@ from go_core.io.atomic import atomic_write_json
 from go_core.masking import OnnxSegmenter, grabcut_mask, mask_stats, save_masks, validate_mask
 from go_core.scene.artifact import load_scene_artifact
 
-VERSION = "1"
 METHODS = ("auto", "provided", "grabcut", "onnx")
 
 

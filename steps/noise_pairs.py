@@ -13,7 +13,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
 from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 from go_core.gaussians import Gaussians
@@ -21,8 +20,8 @@ from go_core.io.atomic import atomic_write, atomic_write_json
 from go_core.repair.data import on_white, render_rgb_alpha, to_uint8, training_views
 from go_core.repair.noise import NoiseStats
 from go_core.repair.pairs import noise_pair
+from go_core.seeding import torch_generator
 
-VERSION = "1"
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 
@@ -59,7 +58,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     rows = []
     size = int(params.get("preview_size", 128))
     if size > 0:
-        gen = torch.Generator().manual_seed(int(ctx.seed) * 7919 + 17)
+        gen = torch_generator(int(ctx.seed), "noise_pairs_preview")
         for k, v in enumerate(views):
             pair = noise_pair(coarse, stats, v, k, gen, backend, scale)
             plain, _ = render_rgb_alpha(coarse, v.camera, 1.0, backend)

@@ -34,8 +34,6 @@ from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write, atomic_write_json
 from go_core.io.curves import write_curves
 
-VERSION = "5"  # 2: compiled SSIM, fused Adam; 3: fused loss terms, render finish; 4: one-region Adam;
-# 5: the compact repair model
 SKIP_IF_SKIPPED = ("lora",)  # the runner skips this step, without a worker, when that input skipped
 
 
@@ -108,7 +106,6 @@ def _preview(path: Path, cache, size: int = 128) -> None:
 
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    import torch
 
     from go_core.diffusion.lora import add_lora, load_lora_state_dict, read_lora
     from go_core.diffusion.models import (
@@ -170,7 +167,6 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     lpips, lpips_note = _lpips(str(params.get("lpips_net", "vgg")), settings.lpips)
     _, views = training_views(inputs["scene"], inputs.get("mask"))
     coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
-    torch.manual_seed(int(ctx.seed))
     bar: dict = {}
 
     def advance(step: int, info: dict) -> None:

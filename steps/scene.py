@@ -9,8 +9,6 @@ from go_core.errors import SceneError
 from go_core.scene.artifact import MANIFEST, save_scene_artifact
 from go_core.scene.loader import load_scene
 
-VERSION = "1"
-
 
 def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""

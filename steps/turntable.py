@@ -18,8 +18,6 @@ from go_core.render import render_camera
 from go_core.scene.artifact import load_scene_cameras
 from go_core.trajectory import camera_path_cameras, contact_sheet, turntable_cameras
 
-VERSION = "1"
-
 
 def render_frames(
     ctx, g: Gaussians, cams: list, bg: torch.Tensor, backend: str, what: str

@@ -27,7 +27,6 @@ from pathlib import Path
 from go_core.errors import GoError, MissingWeightsError
 from go_core.io.atomic import atomic_write_json
 
-VERSION = "2"  # 2: repair_model auto | sd15 | compact
 REPAIR_MODELS = ("auto", "sd15", "compact")
 
 

@@ -13,6 +13,7 @@ from test_runner_toy import content_hashes, make_toy_project
 
 from go_core.errors import GoError, SceneError
 from go_pipeline import store
+from go_pipeline.codehash import digest_of
 from go_pipeline.commands.clean import clean
 from go_pipeline.hashing import cache_key
 from go_pipeline.lock import LockedError, WorkdirLock
@@ -87,7 +88,9 @@ def test_cache_keys_stable_across_processes(toy, tmp_path):
     assert content_hashes(toy.scene / ".go") == content_hashes(other / ".go")
     # and the key is exactly sha256 of the documented material
     m = store.load_manifest(store.artifact_dir(toy.scene / ".go", "double"))
-    assert cache_key("double", "1", m["params"], 0, {"data": m["inputs"]["data"]["content_hash"]}) == m["key"]
+    inputs = {"data": m["inputs"]["data"]["content_hash"]}
+    assert cache_key("double", "1", m["params"], 0, inputs, code=digest_of(m["code"])) == m["key"]
+    assert set(m["code"]) == {f"{toy.pkg}/__init__.py", f"{toy.pkg}/double.py"}
 
 
 def test_param_change_makes_exactly_descendants_stale(toy):
@@ -129,7 +132,7 @@ def test_version_change_makes_only_that_step_stale(toy):
     run(toy)
     toy.set_version("side", "2")
     st = states(toy)
-    assert st["side"] == ("stale", "version changed 1 -> 2")
+    assert st["side"] == ("stale", f"version changed 1 -> 2; code changed: {toy.pkg}/side.py")
     assert [s for s, (state, _) in st.items() if state != "fresh"] == ["side"]
     assert run(toy).ran == ["side"]
 

@@ -47,6 +47,7 @@ def test_step_manifest_schema_rejects_bad_values():
         "step": "coarse",
         "key": "a" * 64,
         "version": "1",
+        "code": {"go_pipeline/steps/coarse.py": "9" * 64},
         "function": "go_pipeline.steps.coarse:run",
         "seed": 0,
         "params": {"iterations": 5},
@@ -70,7 +71,9 @@ def test_step_manifest_schema_rejects_bad_values():
     bad["key"] = "XYZ"
     bad["wall_s"] = -1
     bad["started"] = "yesterday"
+    bad["code"] = {"go_core/losses.py": "not a hash"}
     assert [p.split(":")[0] for p in schema_problems("step_manifest", bad)] == [
+        "at code/go_core/losses.py",
         "at key",
         "at started",
         "at wall_s",

@@ -9,10 +9,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import torch
-
 from go_core.diffusion.configs import RepairArchitecture
 from go_core.diffusion.models import RepairModels
+from go_core.seeding import seeded_torch_init
 
 
 def _byte_symbols() -> list[str]:
@@ -55,10 +54,10 @@ def build_random_models(
     from diffusers import AutoencoderKL, ControlNetModel, DDIMScheduler, UNet2DConditionModel
     from transformers import CLIPTextConfig, CLIPTextModel, CLIPTokenizer
 
-    torch.manual_seed(seed)
-    unet = UNet2DConditionModel(**arch.unet)
-    controlnet = ControlNetModel(**arch.controlnet)
-    vae = AutoencoderKL(**arch.vae)
+    with seeded_torch_init(seed):  # the constructors draw their initial weights from torch's global RNG
+        unet = UNet2DConditionModel(**arch.unet)
+        controlnet = ControlNetModel(**arch.controlnet)
+        vae = AutoencoderKL(**arch.vae)
     tokenizer, special = None, {}
     if tokenizer_dir is not None:
         tokenizer = CLIPTokenizer(
@@ -70,7 +69,8 @@ def build_random_models(
             "bos_token_id": tokenizer.bos_token_id,
             "pad_token_id": tokenizer.pad_token_id,
         }
-    text_encoder = CLIPTextModel(CLIPTextConfig(**arch.text_encoder, **special))
+    with seeded_torch_init(seed, "text_encoder"):
+        text_encoder = CLIPTextModel(CLIPTextConfig(**arch.text_encoder, **special))
     scheduler = DDIMScheduler(**arch.scheduler)
     return RepairModels(
         unet=unet,

@@ -9,6 +9,7 @@ from pathlib import Path
 import torch
 
 from go_core.diffusion.models import RepairModels
+from go_core.seeding import seeded_torch_init
 
 ADAPTER = "repair"
 # Every linear layer of a BasicTransformerBlock: self- and cross-attention projections and the feed-forward.
@@ -48,8 +49,7 @@ def add_lora(models: RepairModels, spec: LoraSpec, seed: int = 0) -> dict[str, i
     LoRA's B matrices start at zero, so the model's outputs are unchanged until training moves them; the A
     matrices are drawn from ``seed`` (the global torch RNG is left as it was).
     """
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(int(seed))
+    with seeded_torch_init(int(seed), "lora"):
         return _inject(models, spec)
 
 

@@ -3,28 +3,14 @@
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
 
 import torch
 
+from go_core.render.types import RenderOutput
+
 BACKENDS = ("auto", "cpu", "cuda", "reference")
 DEPTH_EPS = 1e-10
-
-
-@dataclass
-class RenderOutput:
-    """Per-camera images and what densification needs.
-
-    rgb [C,H,W,3]; alpha [C,H,W,1]; depth [C,H,W,1] expected depth (Σ wᵢ zᵢ / max(alpha, eps));
-    means2d [C,N,2] projected centres in pixels, a non-leaf tensor whose ``.grad`` (call ``retain_grad()``
-    before backward) is the screen-space positional gradient; radii [C,N] int32 pixel radii, 0 = culled.
-    """
-
-    rgb: torch.Tensor
-    alpha: torch.Tensor
-    depth: torch.Tensor
-    means2d: torch.Tensor
-    radii: torch.Tensor
+__all__ = ["BACKENDS", "DEPTH_EPS", "RenderOutput", "render", "render_camera", "render_gaussians"]
 
 
 def _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height) -> None:

@@ -23,6 +23,9 @@ from pathlib import Path
 CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = ("rasterize.cpp", "project.cpp", "ssim.cpp", "adam.cpp")
 HEADERS = ("simd.h",)
+# every file the extension is built from, relative to this folder: read with ast by the pipeline's code hash
+# (a step that loads the extension reruns when a kernel changes); tests/test_codehash.py holds it to the above
+NATIVE_SOURCES = ("csrc/rasterize.cpp", "csrc/project.cpp", "csrc/ssim.cpp", "csrc/adam.cpp", "csrc/simd.h")
 CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 

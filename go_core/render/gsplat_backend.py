@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import torch
 
+from go_core.render.types import RenderOutput
+
 
 def gsplat_available() -> bool:
     try:
@@ -40,7 +42,6 @@ def render_gsplat(
     antialiased: bool = False,
 ):
     """Render with gsplat on CUDA tensors; returns go_core.render.RenderOutput."""
-    from go_core.render.api import RenderOutput
 
     try:
         from gsplat import rasterization

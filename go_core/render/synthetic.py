@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from go_core.seeding import torch_generator
+
 
 def look_at_viewmat(eye, target, dtype=torch.float64) -> torch.Tensor:
     """World-to-camera (OpenCV) matrix of a camera at ``eye`` looking at ``target`` with world -y up."""
@@ -34,7 +36,7 @@ def random_scene(
     spread: float = 0.6,
 ):
     """Gaussians in a ball seen by ``cams`` cameras on a circle of radius 3 (inputs ready for render())."""
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     means = (torch.rand(n, 3, generator=g, dtype=dtype) - 0.5) * 2 * spread
     quats = torch.randn(n, 4, generator=g, dtype=dtype)
     scales = torch.exp(torch.randn(n, 3, generator=g, dtype=dtype) * 0.4) * scale
@@ -65,7 +67,7 @@ def benchmark_scene(
     Screen-space standard deviations are log-uniform in ``sigma_px`` (pixels), anisotropy up to ~3:1,
     opacities in [0.05, 1), so tiles hold a few hundred to a few thousand Gaussians, as in training.
     """
-    g = torch.Generator().manual_seed(seed)
+    g = torch_generator(seed)
     f = 1.2 * size
     dist = 3.0
     d = torch.randn(n, 3, generator=g, dtype=torch.float64)

@@ -23,6 +23,7 @@ import torch
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write, atomic_write_json
 from go_core.repair.data import on_white, render_rgb_alpha, to_uint8
+from go_core.seeding import torch_generator
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,7 @@ def run_one(
         return load_run(run_dir)
     left = views[index]
     others = [v for i, v in enumerate(views) if i != index]
-    gen = torch.Generator().manual_seed(int(seed) * 1000 + index)
+    gen = torch_generator(int(seed), "loo", index)
     base = CoarseConfig.from_dict(settings.coarse_config) if settings.coarse_config else CoarseConfig()
     if settings.compress_schedule:
         base = compressed_config(base, settings.phase1_iterations)

@@ -36,6 +36,7 @@ from go_core.repair.arcs import RepairArcs
 from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha
 from go_core.repair.loss import LpipsFn, repair_image_loss
 from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_decay, neighbour_dmax
+from go_core.seeding import numpy_rng, torch_generator
 
 
 @dataclass(frozen=True)
@@ -168,8 +169,8 @@ class RepairCache:
     @torch.no_grad()
     def make(self, period: int, g: Gaussians) -> list[CachedView]:
         s = self.settings
-        rng = np.random.default_rng([self.seed, period])
-        gen = torch.Generator().manual_seed(self.seed * 100_003 + period)
+        rng = numpy_rng(self.seed, "repair_views", period)
+        gen = torch_generator(self.seed, "repair_views", period)
         out = []
         for rv in self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}"):
             rgb, alpha = render_rgb_alpha(g, rv.camera, 1.0, s.backend, self.sh_degree)
@@ -236,7 +237,7 @@ def repair_gaussians(
         if settings.loss == "sds":
             return sds(step, g)
         cache.ensure((step - 1) // max(settings.refresh_every, 1), g.detach())
-        pick = np.random.default_rng([seed, 7, step]).integers(len(cache.views))
+        pick = numpy_rng(seed, "repair_pick", step).integers(len(cache.views))
         cv = cache.views[int(pick)]
         rgb, _ = render_differentiable(g, cv.camera, 1.0, settings.backend, sh)
         img = repair_image_loss(
@@ -258,8 +259,8 @@ def repair_gaussians(
 
     def sds(step: int, g: Gaussians) -> torch.Tensor:
         """Score distillation on one novel view of the repair paths (same λ(π) and decay as L_rep)."""
-        rng = np.random.default_rng([int(seed), 11, step])
-        gen = torch.Generator().manual_seed(int(seed) * 1_000_003 + step)
+        rng = numpy_rng(int(seed), "sds", step)
+        gen = torch_generator(int(seed), "sds", step)
         views = arcs.sample(rng, 1, name_prefix=f"sds_{step}")
         rv = views[int(rng.integers(len(views)))]
         rgb, alpha = render_differentiable(g, rv.camera, 1.0, settings.backend, sh)
@@ -285,7 +286,7 @@ def repair_gaussians(
         floaters=FloaterConfig(enabled=False),
         lambda_depth=0.0,
     )
-    gen = torch.Generator().manual_seed(int(seed) * 31 + 5)
+    gen = torch_generator(int(seed), "repair_training")
     ckpt = (
         None
         if checkpoint_dir is None

@@ -15,7 +15,6 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from go_core.diffusion.frame import Frame
@@ -23,6 +22,7 @@ from go_core.diffusion.lora import LoraSpec, load_lora_state_dict, lora_paramete
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.repair.data import hwc_to_bchw
 from go_core.repair.pairs import PairSource
+from go_core.seeding import numpy_rng, torch_generator
 
 CKPT_FORMAT = 1
 
@@ -76,8 +76,8 @@ def tune(
     opt = torch.optim.AdamW(
         params, lr=settings.lr, betas=tuple(settings.betas), weight_decay=settings.weight_decay
     )
-    gen = torch.Generator().manual_seed(int(seed) * 2 + 1)
-    rng = np.random.default_rng(int(seed))
+    gen = torch_generator(int(seed), "lora_noise")
+    rng = numpy_rng(int(seed), "lora_batches")
     losses: list[dict] = []
     counts = {"noise": 0, "loo": 0}
     start = 0
