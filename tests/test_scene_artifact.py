@@ -127,7 +127,6 @@ class FakeContext:
 def test_scene_step_writes_the_artifact(shared_data, tmp_path, schema):
     from go_pipeline.steps import scene as step
 
-    assert step.VERSION == "1"
     ctx = FakeContext(tmp_path / "out")
     step.run(ctx, {"folder": shared_data / "dev" / "milk"}, {"views": 2, "max_size": 128})
     assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["scene.json", "views.npz"]
