@@ -13,7 +13,7 @@ Variants join with "+" (e.g. ``drop+aniso``: both overrides).
 
 ``--iterations N`` is the coarse budget knob (``coarse.iterations``): every step-based schedule (densification
 window and interval, opacity reset, SH raise, floater window and interval, position-lr decay) is scaled by
-N / ``coarse.schedule_iterations`` (10 000) in ``go_core.training.scale_schedule``, so the run is a
+N / ``coarse.schedule_iterations`` (10 000) in ``CoarseConfig.scaled_schedule``, so the run is a
 compressed version of the paper's (opacity resets off when their period falls below 500). Test renders use
 a white background; the ground truth is the test photo composited on white with its mask (paper protocol).
 
@@ -38,7 +38,9 @@ from go_core.hull import points_to_gaussians, random_init, visual_hull
 from go_core.losses import ssim
 from go_core.render import render_camera
 from go_core.scene.loader import load_scene
-from go_core.training import TrainView, config_from_params, optimize
+from go_core.seeding import torch_generator
+from go_core.training import TrainView, optimize
+from go_pipeline.pipeline import step_params
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 PAPER_ITERS = 10_000
@@ -153,10 +155,10 @@ def run_variant(
     init = points_to_gaussians(pts, cols, opacity=0.1)
     t_init = time.process_time() - t0
     params = {**coarse_params(profile, iterations), **spec["params"], **extra}
-    config = config_from_params(params)
+    config = step_params("go_pipeline.steps.coarse", params).scaled_schedule()
     views = [TrainView.from_arrays(v.camera, v.image, m) for v, m in zip(scene.train, masks, strict=True)]
     t1, w1 = time.process_time(), time.perf_counter()
-    g, stats = optimize(init, views, config, generator=torch.Generator().manual_seed(seed))
+    g, stats = optimize(init, views, config, generator=torch_generator(seed))
     cpu = time.process_time() - t1
     wall = time.perf_counter() - w1
     metrics = evaluate(g, scene)
@@ -245,7 +247,7 @@ def main(argv=None) -> int:
         "benchmark": "coarse_dev",
         "iterations": args.iterations,
         "scaled_schedule": args.iterations != PAPER_ITERS,
-        "schedule_scaling": "go_core.training.scale_schedule",
+        "schedule_scaling": "go_core.train_settings.CoarseConfig.scaled_schedule",
         "max_size": args.max_size,
         "random_points": args.random_points,
         "profile": args.profile or "default",

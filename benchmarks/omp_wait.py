@@ -45,7 +45,7 @@ def child(scene_dir: Path, iterations: int, warmup: int) -> dict:
 
     from go_core.hull import points_to_gaussians, visual_hull
     from go_core.scene.loader import load_scene
-    from go_core.training import NoDensify, TrainView, config_from_params, optimize
+    from go_core.training import CoarseConfig, NoDensify, TrainView, optimize
 
     torch.set_num_threads(int(os.environ.get("GO_BENCH_THREADS", "2")))
     scene = load_scene(scene_dir)
@@ -54,7 +54,7 @@ def child(scene_dir: Path, iterations: int, warmup: int) -> dict:
     hull = visual_hull(cams, masks, [v.image for v in scene.train], num_points=20_000, seed=0)
     init = points_to_gaussians(hull.points, hull.colors, opacity=0.1)
     views = [TrainView.from_arrays(v.camera, v.image, m) for v, m in zip(scene.train, masks, strict=True)]
-    config = config_from_params({"iterations": iterations, "floaters": False, "sh_increase_every": 1})
+    config = CoarseConfig(iterations=iterations, floaters=False, sh_increase_every=1)
     marks: list[tuple[float, float]] = []
 
     def tick(step: int, info: dict) -> None:

@@ -13,31 +13,14 @@ whole densification interval: they were occluded, outside every view or transpar
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from abc import ABC, abstractmethod
 
 import torch
 
 from go_core.optim import GaussianOptimizer
+from go_core.train_settings import DensifyConfig
 
-
-@dataclass
-class DensifyConfig:
-    start_iter: int = 500  # first densification after this step
-    stop_iter: int = 6000  # none at or after this step
-    every: int = 100
-    grad_threshold: float = 2e-4  # on the screen-space gradient in NDC units (3DGS τ_pos)
-    percent_dense: float = 0.01  # clone if max scale ≤ percent_dense·extent, else split
-    split_count: int = 2
-    min_opacity: float = 0.005
-    reset_every: int = 1000  # opacity reset period (0: never); only while densifying
-    reset_value: float = 0.01
-    max_screen_size: float = 20.0  # px; prune larger ones after the first opacity reset (0: off)
-    max_world_size: float = 0.1  # ·extent; prune larger ones after the first opacity reset (0: off)
-    max_gaussians: int = 150_000  # budget (0: unlimited)
-    prune_no_contribution: bool = True
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+__all__ = ["DensifyConfig", "DensifyStrategy", "NoDensify", "Strategy", "quat_to_rotmat"]
 
 
 def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
@@ -54,10 +37,60 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     ).reshape(-1, 3, 3)  # fmt: skip
 
 
-class DensifyStrategy:
+class Strategy(ABC):
+    """What the training loop calls (see the module docstring); ``counts`` says what the strategy did."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = {}
+
+    @abstractmethod
+    def pre_backward(self, step: int, out) -> None: ...
+
+    @abstractmethod
+    def post_backward(self, step: int, out, width: int, height: int, opt: GaussianOptimizer) -> None: ...
+
+    @abstractmethod
+    def after_step(self, step: int, opt: GaussianOptimizer, generator: torch.Generator) -> dict[str, int]:
+        """Change the set (densify, prune, reset); returns {operation: count} for this step."""
+
+    @abstractmethod
+    def on_external_prune(self, keep: torch.Tensor) -> None:
+        """Rows were removed by someone else (floater elimination): drop their statistics."""
+
+    @abstractmethod
+    def state_dict(self) -> dict: ...
+
+    @abstractmethod
+    def load_state_dict(self, state: dict) -> None: ...
+
+
+class NoDensify(Strategy):
+    """A strategy that never changes the set (fine-tuning, repair)."""
+
+    def pre_backward(self, step: int, out) -> None:
+        pass
+
+    def post_backward(self, step: int, out, width: int, height: int, opt: GaussianOptimizer) -> None:
+        pass
+
+    def after_step(self, step: int, opt: GaussianOptimizer, generator: torch.Generator) -> dict[str, int]:
+        return {}
+
+    def on_external_prune(self, keep: torch.Tensor) -> None:
+        pass
+
+    def state_dict(self) -> dict:
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        pass
+
+
+class DensifyStrategy(Strategy):
     """3DGS adaptive density control with a budget; see the module docstring for the hook protocol."""
 
     def __init__(self, config: DensifyConfig, extent: float, n: int) -> None:
+        super().__init__()
         self.config = config
         self.extent = float(extent)
         self.counts: dict[str, int] = {"cloned": 0, "split": 0, "pruned": 0, "pruned_no_contribution": 0}
@@ -71,7 +104,7 @@ class DensifyStrategy:
         self.max_radii = torch.zeros(n)
 
     def active(self, step: int) -> bool:
-        return step < self.config.stop_iter
+        return step < self.config.densify_until
 
     # Hooks -------------------------------------------------------------------------------------------------
     def pre_backward(self, step: int, out) -> None:
@@ -107,11 +140,11 @@ class DensifyStrategy:
         changed: dict[str, int] = {}
         if not self.active(step):
             return changed
-        if step > c.start_iter and step % c.every == 0:
+        if step > c.densify_from and step % c.densify_every == 0:
             changed.update(self._densify_and_prune(opt, step, generator))
             self._reset_stats(len(opt))
-        if c.reset_every > 0 and step % c.reset_every == 0:
-            value = torch.logit(torch.tensor(c.reset_value)).item()
+        if c.opacity_reset_every > 0 and step % c.opacity_reset_every == 0:
+            value = torch.logit(torch.tensor(c.opacity_reset_value)).item()
             opt.reset("opacity_logits", opt.params["opacity_logits"].detach().clamp_max(value))
             self.counts["opacity_resets"] += 1
         return changed
@@ -123,7 +156,7 @@ class DensifyStrategy:
         p = opt.params
         opac = torch.sigmoid(p["opacity_logits"].detach())
         prune = opac < c.min_opacity
-        if step > c.reset_every > 0:
+        if step > c.opacity_reset_every > 0:
             if c.max_screen_size > 0:
                 prune |= self.max_radii > c.max_screen_size
             if c.max_world_size > 0:
@@ -145,7 +178,7 @@ class DensifyStrategy:
         n = len(opt)
         prune, n_nc = self._prune_mask(opt, step)
         grads = self.grad_accum / self.vis_count.clamp_min(1.0)
-        high = (grads >= c.grad_threshold) & ~prune
+        high = (grads >= c.densify_grad_threshold) & ~prune
         max_scale = p["log_scales"].detach().exp().max(dim=1).values
         small = max_scale <= c.percent_dense * self.extent
         clone = high & small

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from go_core import artifacts
 from go_core.errors import MissingWeightsError
 
 
@@ -55,8 +56,8 @@ class DepthEstimator:
         return pred[0, 0].cpu().numpy().astype(np.float32)
 
 
-DEPTH_FILE = "depth.npz"
-DEPTH_JSON = "depth.json"
+DEPTH_FILE = artifacts.DEPTH.file
+DEPTH_JSON = artifacts.DEPTH_INFO.file
 
 
 def save_depth_priors(out_dir: str | Path, disparities: list[np.ndarray]) -> Path:

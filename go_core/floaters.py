@@ -9,43 +9,12 @@ For P Gaussians, each one's mean Euclidean distance to its ⌊√P⌋ nearest ot
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import numpy as np
 from scipy.spatial import cKDTree
 
-SCHEDULES = {"code": (1.0, 2.33), "paper": (1.0, 0.0)}
+from go_core.train_settings import SCHEDULES, FloaterConfig
 
-
-@dataclass
-class FloaterConfig:
-    enabled: bool = True
-    every: int = 500
-    start_iter: int = 500  # the schedule's start (λ = its first value here)
-    stop_iter: int = 6000  # last step at which it runs (λ = its last value here)
-    schedule: str = "code"  # "code" (1 → 2.33) or "paper" (1 → 0)
-    max_remove_fraction: float = 0.5  # safety: never remove more than this share in one pass
-
-    def __post_init__(self) -> None:
-        if self.schedule not in SCHEDULES:
-            raise ValueError(f"floater schedule must be one of {sorted(SCHEDULES)}, got {self.schedule!r}")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    def due(self, step: int) -> bool:
-        return (
-            self.enabled
-            and self.every > 0
-            and step % self.every == 0
-            and self.start_iter <= step <= self.stop_iter
-        )
-
-    def lambda_at(self, step: int) -> float:
-        lo, hi = SCHEDULES[self.schedule]
-        span = max(self.stop_iter - self.start_iter, 1)
-        t = min(max((step - self.start_iter) / span, 0.0), 1.0)
-        return lo + (hi - lo) * t
+__all__ = ["SCHEDULES", "FloaterConfig", "floater_mask", "knn_mean_distance"]
 
 
 def knn_mean_distance(points: np.ndarray, k: int | None = None) -> np.ndarray:

@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from go_core import artifacts
 from go_core.errors import MissingWeightsError, SceneError
 
 NORMALISATIONS = {
@@ -106,7 +107,7 @@ def mask_stats(mask: np.ndarray) -> dict:
 
 
 # Artifact IO ---------------------------------------------------------------------------------------------
-MASKS_FILE = "masks.npz"
+MASKS_FILE = artifacts.MASKS.file
 
 
 def save_masks(out_dir: str | Path, masks: list[np.ndarray]) -> Path:

@@ -7,33 +7,12 @@ resetting rows keep the Adam moments of the surviving rows and start new rows at
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import torch
 
 from go_core.gaussians import Gaussians
+from go_core.train_settings import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
-
-
-@dataclass
-class LearningRates:
-    """3DGS learning rates; ``means`` is multiplied by the scene extent, and decays exponentially."""
-
-    means_init: float = 1.6e-4
-    means_final: float = 1.6e-6
-    means_max_steps: int = 30_000
-    sh0: float = 2.5e-3
-    shN: float = 2.5e-3 / 20.0
-    opacity: float = 0.05
-    scaling: float = 5e-3
-    rotation: float = 1e-3
-
-    def means_at(self, step: int, extent: float) -> float:
-        """Log-linear decay from init to final over ``means_max_steps`` (the 3DGS schedule without delay)."""
-        t = min(max(step / max(self.means_max_steps, 1), 0.0), 1.0)
-        return math.exp(math.log(self.means_init) * (1 - t) + math.log(self.means_final) * t) * extent
 
 
 def _adam(groups: list[dict]) -> torch.optim.Adam:
@@ -78,12 +57,12 @@ class GaussianOptimizer:
             k: torch.nn.Parameter(v.to(torch.float32).contiguous()) for k, v in tensors.items()
         }
         lr = {
-            "means": lrs.means_init * self.extent,
-            "quats": lrs.rotation,
-            "log_scales": lrs.scaling,
-            "opacity_logits": lrs.opacity,
-            "sh0": lrs.sh0,
-            "shN": lrs.shN,
+            "means": lrs.position_lr_init * self.extent,
+            "quats": lrs.rotation_lr,
+            "log_scales": lrs.scaling_lr,
+            "opacity_logits": lrs.opacity_lr,
+            "sh0": lrs.feature_lr,
+            "shN": lrs.feature_rest_lr,
         }
         self.optimizer = _adam([{"params": [self.params[k]], "lr": lr[k], "name": k} for k in PARAM_NAMES])
 
@@ -102,7 +81,7 @@ class GaussianOptimizer:
         return self.gaussians().detach()
 
     def set_means_lr(self, step: int) -> float:
-        lr = self.lrs.means_at(step, self.extent)
+        lr = self.lrs.position_lr_at(step, self.extent)
         for group in self.optimizer.param_groups:
             if group["name"] == "means":
                 group["lr"] = lr

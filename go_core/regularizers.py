@@ -16,25 +16,12 @@ so each is also an ablation; measured on the dev scenes in docs/coarse.md).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import torch
 
 from go_core.gaussians import Gaussians
+from go_core.train_settings import RegularizerConfig
 
-
-@dataclass
-class RegularizerConfig:
-    """Weights of the regularisers (0 = off: the loop is then bit-identical to plain 3DGS)."""
-
-    drop_gamma: float = 0.0  # DropGaussian: final drop rate γ (rate γ·t/T at iteration t)
-    lambda_outside: float = 0.0  # α² outside the training mask, averaged over the outside pixels
-    lambda_anisotropy: float = 0.0  # hinge on the max/min scale ratio above max_anisotropy
-    max_anisotropy: float = 10.0
-    lambda_opacity: float = 0.0  # mean activated opacity (opacity decay)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+__all__ = ["RegularizerConfig", "drop_compensation", "drop_rate", "regularization_loss"]
 
 
 # DropGaussian ----------------------------------------------------------------------------------------------

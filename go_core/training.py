@@ -3,7 +3,7 @@
     from go_core.training import CoarseConfig, TrainView, optimize
     views = [TrainView.from_arrays(v.camera, v.image, mask) for v, mask in zip(scene.train, masks)]
     gaussians, stats = optimize(init_gaussians, views, CoarseConfig(iterations=10_000),
-                                generator=torch.Generator().manual_seed(seed),
+                                generator=torch_generator(seed),
                                 checkpoint=CheckpointSpec(ctx.checkpoint_dir, every=500))
 
 Per iteration (3DGS): pick one view (a random permutation of the views, refilled when empty, drawn from the
@@ -16,7 +16,7 @@ Composability:
   supervised images (e.g. repaired renders without a mask) can be mixed in with their own weights;
 * ``sample_view(step, generator) -> index`` replaces the default view order;
 * ``extra_loss(step, gaussians, out, view, index) -> Tensor | None`` adds any term;
-* ``strategy`` replaces the densification strategy (``None`` → ``DensifyStrategy(config.densify)``; pass
+* ``strategy`` replaces the densification strategy (``None`` → ``DensifyStrategy(config)``; pass
   ``NoDensify()`` to keep the set fixed);
 * ``checkpoint`` = ``CheckpointSpec(dir, every)``: the loop resumes from the newest checkpoint in ``dir``
   (params, Adam moments, strategy state, RNG state, loss log) and its final result is bit-identical to an
@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import hashlib
-import json
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, is_dataclass
@@ -39,52 +38,15 @@ import numpy as np
 import torch
 
 from go_core.camera import Camera
-from go_core.densify import DensifyConfig, DensifyStrategy
-from go_core.floaters import FloaterConfig, floater_mask
+from go_core.densify import DensifyStrategy, NoDensify, Strategy
+from go_core.floaters import floater_mask
 from go_core.gaussians import Gaussians
 from go_core.losses import depth_loss, photometric_terms
-from go_core.optim import GaussianOptimizer, LearningRates
-from go_core.regularizers import RegularizerConfig, drop_compensation, drop_rate, regularization_loss
+from go_core.optim import GaussianOptimizer
+from go_core.regularizers import drop_compensation, drop_rate, regularization_loss
+from go_core.train_settings import CoarseConfig
 
 CHECKPOINT_FORMAT = 1
-
-
-@dataclass
-class CoarseConfig:
-    """Coarse 3DGS settings; the defaults are the paper's / the authors' code's."""
-
-    iterations: int = 10_000
-    sh_degree: int = 2
-    sh_increase_every: int = 1000
-    lambda_dssim: float = 0.2
-    lambda_mask: float = 0.01  # BCE(alpha, mask) weight (authors' code: lambda_silhouette)
-    lambda_depth: float = 5e-4  # shift/scale-invariant depth loss weight (authors' code: mono_depth_weight)
-    depth_min_pixels: int = 10  # skip the depth term when fewer valid pixels
-    random_background: bool = True
-    background: tuple[float, float, float] = (1.0, 1.0, 1.0)  # used when random_background is False
-    lr: LearningRates = field(default_factory=LearningRates)
-    densify: DensifyConfig = field(default_factory=DensifyConfig)
-    floaters: FloaterConfig = field(default_factory=FloaterConfig)
-    regularize: RegularizerConfig = field(default_factory=RegularizerConfig)
-    backend: str = "auto"
-    log_every: int = 100
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @staticmethod
-    def from_dict(d: dict) -> CoarseConfig:
-        d = dict(d)
-        lr = LearningRates(**d.pop("lr", {}))
-        dens = DensifyConfig(**d.pop("densify", {}))
-        flo = FloaterConfig(**d.pop("floaters", {}))
-        reg = RegularizerConfig(**d.pop("regularize", {}))
-        if "background" in d:
-            d["background"] = tuple(d["background"])
-        return CoarseConfig(lr=lr, densify=dens, floaters=flo, regularize=reg, **d)
-
-    def fingerprint(self) -> str:
-        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
 
 
 @dataclass
@@ -106,30 +68,6 @@ class TrainView:
             return None if a is None else torch.as_tensor(np.asarray(a, np.float32))
 
         return TrainView(camera, t(image), t(mask), t(depth), **kw)
-
-
-class NoDensify:
-    """A strategy that never changes the set (fine-tuning, repair)."""
-
-    counts: dict[str, int] = {}
-
-    def pre_backward(self, step, out) -> None:
-        pass
-
-    def post_backward(self, step, out, width, height, opt) -> None:
-        pass
-
-    def after_step(self, step, opt, generator) -> dict[str, int]:
-        return {}
-
-    def on_external_prune(self, keep) -> None:
-        pass
-
-    def state_dict(self) -> dict:
-        return {}
-
-    def load_state_dict(self, state: dict) -> None:
-        pass
 
 
 @dataclass
@@ -298,7 +236,7 @@ def optimize(
     *,
     generator: torch.Generator,
     extent: float | None = None,
-    strategy=None,
+    strategy: Strategy | None = None,
     sample_view: Callable[[int, torch.Generator], int] | None = None,
     extra_loss: Callable[..., torch.Tensor | None] | None = None,
     on_progress: Callable[[int, dict], None] | None = None,
@@ -316,9 +254,9 @@ def optimize(
         raise ValueError("optimize needs at least one view")
     extent = scene_extent([v.camera for v in views]) if extent is None else float(extent)
     g0 = gaussians.detach().to(dtype=torch.float32).with_sh_degree(config.sh_degree)
-    opt = GaussianOptimizer(g0, config.lr, extent)
+    opt = GaussianOptimizer(g0, config, extent)
     if strategy is None:
-        strategy = DensifyStrategy(config.densify, extent, len(opt))
+        strategy = DensifyStrategy(config, extent, len(opt))
     stats = TrainStats(initial_count=len(g0), max_count=len(g0))
     stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
     order: list[int] = []
@@ -354,12 +292,12 @@ def optimize(
             view = views[index]
             bg = torch.rand(3, generator=generator) if config.random_background else fixed_bg
             g = opt.gaussians()
-            rate = drop_rate(step, config.iterations, config.regularize.drop_gamma)
+            rate = drop_rate(step, config.iterations, config.drop_gamma)
             keep_scale = drop_compensation(len(g), rate, generator)
             out = _render(g, view.camera, active_sh, bg, config.backend, keep_scale)
             strategy.pre_backward(step, out)
             loss, parts = view_loss(out, view, bg, config, step)
-            reg, reg_parts = regularization_loss(config.regularize, g, out.alpha[0, ..., 0], view.mask)
+            reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask)
             if reg is not None:
                 loss = loss + reg
                 parts.update(reg_parts)
@@ -372,12 +310,12 @@ def optimize(
             strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
             opt.step()
             changed = strategy.after_step(step, opt, generator)
-            if config.floaters.due(step):
-                lam = config.floaters.lambda_at(step)
+            if config.floater_due(step):
+                lam = config.floater_lambda_at(step)
                 remove = floater_mask(
                     opt.params["means"].detach().numpy(),
                     lam,
-                    max_fraction=config.floaters.max_remove_fraction,
+                    max_fraction=config.floater_max_remove_fraction,
                 )
                 n_removed = int(remove.sum())
                 if n_removed:
@@ -409,7 +347,7 @@ def optimize(
                 and step % checkpoint.every == 0
                 and step < config.iterations
             ):
-                stats.densify = dict(getattr(strategy, "counts", {}))
+                stats.densify = dict(strategy.counts)
                 stats.final_count = len(opt)
                 _save_checkpoint(
                     checkpoint,
@@ -426,7 +364,7 @@ def optimize(
                     step,
                 )
     stats.final_count = len(opt)
-    stats.densify = dict(getattr(strategy, "counts", {}))
+    stats.densify = dict(strategy.counts)
     if not math.isfinite(float(opt.params["means"].detach().sum())):
         raise FloatingPointError("coarse optimisation diverged (non-finite Gaussian positions)")
     return opt.snapshot(), stats
@@ -436,118 +374,10 @@ __all__ = [
     "CheckpointSpec",
     "CoarseConfig",
     "NoDensify",
+    "Strategy",
     "TrainStats",
     "TrainView",
-    "config_from_params",
     "optimize",
-    "scale_schedule",
     "scene_extent",
     "view_loss",
 ]
-
-
-# Flat step params (pipeline.yaml `coarse:` section) → CoarseConfig ---------------------------------------
-PARAM_MAP: dict[str, tuple[str | None, str]] = {
-    # param name: (sub-config or None, field)
-    "iterations": (None, "iterations"),
-    "sh_degree": (None, "sh_degree"),
-    "sh_increase_every": (None, "sh_increase_every"),
-    "lambda_dssim": (None, "lambda_dssim"),
-    "lambda_mask": (None, "lambda_mask"),
-    "lambda_depth": (None, "lambda_depth"),
-    "random_background": (None, "random_background"),
-    "backend": (None, "backend"),
-    "position_lr_init": ("lr", "means_init"),
-    "position_lr_final": ("lr", "means_final"),
-    "position_lr_max_steps": ("lr", "means_max_steps"),
-    "feature_lr": ("lr", "sh0"),
-    "opacity_lr": ("lr", "opacity"),
-    "scaling_lr": ("lr", "scaling"),
-    "rotation_lr": ("lr", "rotation"),
-    "densify_from": ("densify", "start_iter"),
-    "densify_until": ("densify", "stop_iter"),
-    "densify_every": ("densify", "every"),
-    "densify_grad_threshold": ("densify", "grad_threshold"),
-    "percent_dense": ("densify", "percent_dense"),
-    "min_opacity": ("densify", "min_opacity"),
-    "opacity_reset_every": ("densify", "reset_every"),
-    "max_gaussians": ("densify", "max_gaussians"),
-    "prune_no_contribution": ("densify", "prune_no_contribution"),
-    "floaters": ("floaters", "enabled"),
-    "floater_every": ("floaters", "every"),
-    "floater_from": ("floaters", "start_iter"),
-    "floater_until": ("floaters", "stop_iter"),
-    "floater_schedule": ("floaters", "schedule"),
-    "drop_gamma": ("regularize", "drop_gamma"),
-    "lambda_outside": ("regularize", "lambda_outside"),
-    "lambda_anisotropy": ("regularize", "lambda_anisotropy"),
-    "max_anisotropy": ("regularize", "max_anisotropy"),
-    "lambda_opacity": ("regularize", "lambda_opacity"),
-}
-
-# The budget knob: step-based schedule params are written for ``schedule_iterations`` (the paper's 10 000) and
-# scaled by iterations / schedule_iterations, so ``iterations`` alone sets the budget.
-SCHEDULE_PARAMS: tuple[str, ...] = (
-    "sh_increase_every",
-    "position_lr_max_steps",
-    "densify_from",
-    "densify_until",
-    "densify_every",
-    "opacity_reset_every",
-    "floater_every",
-    "floater_from",
-    "floater_until",
-)
-
-
-def _default_param(key: str):
-    """The ``CoarseConfig`` default of a flat param."""
-    sub, name = PARAM_MAP[key]
-    cfg = CoarseConfig()
-    return getattr(cfg if sub is None else getattr(cfg, sub), name)
-
-
-def scale_schedule(params: dict) -> dict:
-    """Flat coarse params with every step-based schedule (``SCHEDULE_PARAMS``) scaled by
-    ``iterations / schedule_iterations`` (rounded, intervals at least 1); unchanged when
-    ``schedule_iterations`` is 0 or absent, or equals ``iterations``.
-
-    Opacity resets whose scaled period falls below ``opacity_reset_min_interval`` are switched off:
-    recovering from a reset takes a fixed number of Adam steps (~100+), not a share of the run, so a short
-    run would end right after one."""
-    reference = int(params.get("schedule_iterations", 0) or 0)
-    iterations = int(params.get("iterations", CoarseConfig.iterations))
-    if reference <= 0 or reference == iterations:
-        return dict(params)
-    f = iterations / reference
-    out = {key: _default_param(key) for key in SCHEDULE_PARAMS} | dict(params)
-    for key in SCHEDULE_PARAMS:
-        if int(out[key]) > 0:
-            out[key] = max(1, int(round(int(out[key]) * f)))
-    min_reset = int(params.get("opacity_reset_min_interval", 0) or 0)
-    if int(out.get("opacity_reset_every", 0)) < min_reset:
-        out["opacity_reset_every"] = 0
-    return out
-
-
-def config_from_params(params: dict) -> CoarseConfig:
-    """A ``CoarseConfig`` from flat step params (unknown keys are ignored; the step handles its own), with
-    the schedules scaled to the budget (:func:`scale_schedule`)."""
-    cfg = CoarseConfig()
-    for key, value in scale_schedule(params).items():
-        if key not in PARAM_MAP:
-            continue
-        sub, name = PARAM_MAP[key]
-        target = cfg if sub is None else getattr(cfg, sub)
-        current = getattr(target, name)
-        if isinstance(current, bool):
-            value = bool(value)
-        elif isinstance(current, int):
-            value = int(value)
-        elif isinstance(current, float):
-            value = float(value)
-        setattr(target, name, value)
-        if key == "feature_lr":
-            cfg.lr.shN = float(value) / 20.0
-    cfg.floaters.__post_init__()
-    return cfg

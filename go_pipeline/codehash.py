@@ -6,7 +6,9 @@ that it imports, transitively (imports inside functions count: they are code the
 and the native sources a module declares in a module-level literal ``NATIVE_SOURCES`` (paths relative to
 that module's folder: the C++ kernels the CPU extension is compiled from).
 
-Everything is found with ``ast`` on the source files, nothing is imported, so ``status`` and a no-op ``run``
+Imports under ``if TYPE_CHECKING:`` are left out (they never run: the steps import their params classes
+there, so editing steps/params.py reruns nothing by itself; the values are in the keys). Everything is found
+with ``ast`` on the source files, nothing is imported, so ``status`` and a no-op ``run``
 stay cheap. Third-party libraries are not followed (their versions are recorded in the manifest).
 
 Files are named by their place in the package, e.g. ``go_core/losses.py``, ``go_pipeline/steps/coarse.py``,
@@ -109,8 +111,17 @@ def _parse_source(
     except SyntaxError as e:
         problem = f"cannot parse it to hash the step's code: {e.msg} (line {e.lineno})"
         raise PipelineError(problem, path) from None
+    skipped = {
+        id(n)
+        for block in ast.walk(tree)
+        if isinstance(block, ast.If) and ast.unparse(block.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING")
+        for stmt in block.body
+        for n in ast.walk(stmt)
+    }  # imports for type checking only never run
     names: list[str] = []
     for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
         if isinstance(node, ast.Import):
             names.extend(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):

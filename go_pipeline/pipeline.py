@@ -1,6 +1,10 @@
 """pipeline.yaml: load and check the DAG, read step VERSIONs without importing, resolve params.
 
-Everything here is cheap (yaml + ast), so ``status`` and a no-op ``run`` never import torch or a step.
+A step whose module has a params class (go_pipeline.steps.params.PARAMS_CLASSES) is typed: its params in
+pipeline.yaml, the profiles and ``--set`` are checked against the class (known name, type, range) and
+resolved into an instance of it; other steps (e.g. a pipeline of your own) take the type of each default.
+Everything here is cheap (yaml + ast + the torch-free params classes), so ``status`` and a no-op ``run``
+never import torch or a step.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from go_core.config import SettingError, check_value, fields_of, from_mapping, to_mapping
 from go_core.errors import PipelineError, first_line
 
 SCENE_INPUT = "@scene"  # the pseudo-input naming the scene folder itself (a step may be called `scene`)
@@ -30,8 +35,10 @@ class StepSpec:
     callable: str
     inputs: dict[str, str]  # input name -> upstream step name, or SCENE_INPUT
     outputs: tuple[str, ...]
-    params: dict[str, Any]  # defaults
+    params: dict[str, Any]  # defaults (typed steps: every setting of the class, pipeline.yaml's values)
     description: str = ""
+    params_class: type | None = None  # the step's typed params (None: untyped, the defaults give the types)
+    upstream_params: dict[str, str] = field(default_factory=dict)  # field -> step whose params fill it
 
     @property
     def function(self) -> str:
@@ -79,11 +86,14 @@ class Pipeline:
     def resolve_params(
         self, profile: str | None = None, overrides: dict[str, Any] | None = None
     ) -> dict[str, dict[str, Any]]:
-        """Defaults, then the profile's overrides, then ``overrides``.
+        """Defaults, then the profile's overrides, then ``overrides``; each value checked (name, type, range)
+        as it is applied, so an error names where the value came from.
 
         ``overrides``: {"step.param": value} or {step: {param: value}}. String values then have
         ``${NAME}`` / ``${NAME:-default}`` replaced from the environment, so a setting taken from the
-        environment (e.g. a weights folder) is part of the cache key like any other param."""
+        environment (e.g. a weights folder) is part of the cache key like any other param. A typed step's
+        fields that hold another step's params are filled with that step's resolved params; its class's
+        cross-field ``check()`` runs last. Returns plain JSON-able dicts (see ``step_params``)."""
         params = {name: dict(spec.params) for name, spec in self.steps.items()}
         if profile is not None:
             if profile not in self.profiles:
@@ -95,14 +105,38 @@ class Pipeline:
         for dotted, value in flatten_overrides(overrides or {}).items():
             what = f"--set {dotted}={_show(value)}"
             step, param = self._split_dotted(dotted, what)
-            params[step][param] = check_param_type(self.steps[step].params[param], value, what, None)
-        return {step: {k: expand_env(v) for k, v in values.items()} for step, values in params.items()}
+            params[step][param] = self._check(self.steps[step], param, value, what, None)
+        resolved = {step: {k: expand_env(v) for k, v in values.items()} for step, values in params.items()}
+        for name, spec in self.steps.items():
+            if spec.params_class is None:
+                continue
+            for fname, upstream in spec.upstream_params.items():
+                resolved[name][fname] = resolved[upstream]
+            try:
+                resolved[name] = to_mapping(from_mapping(spec.params_class, resolved[name]))
+            except SettingError as e:
+                raise PipelineError(f"step {name!r}: {e}") from None
+        return resolved
+
+    def _check(self, spec: StepSpec, param: str, value: Any, what: str, path: Path | None) -> Any:
+        """``value`` for ``spec``'s ``param``, checked (``path``: the file it came from, None for --set)."""
+        if spec.params_class is None:
+            return check_param_type(spec.params[param], value, what, path)
+        try:
+            return check_value(spec.params_class, param, value)
+        except SettingError as e:
+            raise PipelineError(f"{what}: {e.problem}", path) from None
 
     def _split_dotted(self, dotted: str, what: str) -> tuple[str, str]:
         step, sep, param = dotted.partition(".")
         if not sep or not step or not param:
             raise PipelineError(f"{what}: expected STEP.PARAM=VALUE")
         spec = self.require_step(step, what, from_file=False)
+        if param in spec.upstream_params:
+            up = spec.upstream_params[param]
+            raise PipelineError(
+                f"{what}: {step}.{param} is step {up!r}'s params, given to {step!r}: set {up}.NAME instead"
+            )
         if param not in spec.params:
             known = ", ".join(spec.params) or "none"
             raise PipelineError(f"{what}: step {step!r} has no param {param!r} (params: {known})")
@@ -263,6 +297,7 @@ def load_pipeline(path: str | Path | None = None) -> Pipeline:
             if upstream == spec.name:
                 raise PipelineError(f"step {spec.name!r}: input {input_name!r} is the step itself", path)
     order = _toposort(specs, path)
+    specs = _link_upstream_params(specs, path)
     pipeline = Pipeline(path=path, steps={n: specs[n] for n in order})
     pipeline.profiles = _parse_profiles(data.get("profiles") or {}, pipeline)
     return pipeline
@@ -285,7 +320,16 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
     inputs = body.get("inputs") or {}
     if not isinstance(inputs, dict) or not all(isinstance(v, str) for v in inputs.values()):
         raise PipelineError(f"step {name!r}: inputs must map input name -> step name (or '@scene')", path)
-    outputs = body.get("outputs") or []
+    from go_pipeline.catalog import declared_outputs
+
+    catalogued = declared_outputs(module)
+    if catalogued is not None and "outputs" in body and set(body["outputs"] or []) != set(catalogued):
+        raise PipelineError(
+            f"step {name!r}: {module} writes {', '.join(catalogued)} (go_pipeline.catalog); "
+            "pipeline.yaml need not list them",
+            path,
+        )
+    outputs = list(catalogued) if catalogued is not None else body.get("outputs") or []
     if not isinstance(outputs, list) or not all(isinstance(o, str) and o for o in outputs):
         raise PipelineError(f"step {name!r}: outputs must be a list of file names", path)
     for o in outputs:
@@ -298,6 +342,9 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
     params = body.get("params") or {}
     if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
         raise PipelineError(f"step {name!r}: params must be a mapping of name -> default", path)
+    cls = params_class_for(module)
+    if cls is not None:
+        params = _typed_defaults(name, cls, params, path)
     return StepSpec(
         name,
         module,
@@ -306,7 +353,85 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
         tuple(outputs),
         dict(params),
         str(body.get("description") or ""),
+        params_class=cls,
     )
+
+
+def step_params(module: str, params: dict[str, Any]) -> Any:
+    """The object a step's ``run`` receives: an instance of its params class (typed steps) or the dict."""
+    cls = params_class_for(module)
+    return dict(params) if cls is None else from_mapping(cls, params)
+
+
+def params_class_for(module: str) -> type | None:
+    """The typed params class of a step module (go_pipeline.steps.params), or None for untyped steps."""
+    from go_pipeline.steps.params import PARAMS_CLASSES
+
+    return PARAMS_CLASSES.get(module)
+
+
+def _typed_defaults(step: str, cls: type, values: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The class's defaults with pipeline.yaml's values applied, each checked; upstream fields left out."""
+    from go_pipeline.steps.params import upstream_fields
+
+    upstream = upstream_fields(cls)
+    for key in values:
+        if key in upstream:
+            raise PipelineError(f"step {step!r}: param {key!r} is filled from another step's params", path)
+    defaults = {k: v for k, v in to_mapping(cls()).items() if k in fields_of(cls) and k not in upstream}
+    for key, value in values.items():
+        if key not in defaults:
+            known = ", ".join(defaults) or "none"
+            raise PipelineError(
+                f"step {step!r}: {key!r} is not a setting of {cls.__name__} (settings: {known})", path
+            )
+        try:
+            defaults[key] = to_mapping(check_value(cls, key, value))
+        except SettingError as e:
+            raise PipelineError(f"step {step!r}: param {e}", path) from None
+    return defaults
+
+
+def _link_upstream_params(specs: dict[str, StepSpec], path: Path) -> dict[str, StepSpec]:
+    """Fill each typed step's ``upstream_params``: the step whose params class a field of its class holds
+    (that step must be one of its ancestors, so its params are resolved first)."""
+    from dataclasses import replace
+
+    from go_pipeline.steps.params import upstream_fields
+
+    linked = dict(specs)
+    for name, spec in specs.items():
+        if spec.params_class is None:
+            continue
+        links = {}
+        for fname, cls in upstream_fields(spec.params_class).items():
+            owners = [s.name for s in specs.values() if s.params_class is cls]
+            if len(owners) != 1:
+                raise PipelineError(
+                    f"step {name!r}: its param {fname!r} takes {cls.__name__}, which "
+                    f"{'no step' if not owners else 'several steps (' + ', '.join(owners) + ')'} has",
+                    path,
+                )
+            if owners[0] not in _ancestors(specs, name):
+                raise PipelineError(
+                    f"step {name!r}: its param {fname!r} takes step {owners[0]!r}'s params, "
+                    f"but {owners[0]!r} is not upstream of it",
+                    path,
+                )
+            links[fname] = owners[0]
+        linked[name] = replace(spec, upstream_params=links)
+    return linked
+
+
+def _ancestors(specs: dict[str, StepSpec], name: str) -> set[str]:
+    seen: set[str] = set()
+    stack = list(specs[name].upstream)
+    while stack:
+        s = stack.pop()
+        if s not in seen:
+            seen.add(s)
+            stack.extend(specs[s].upstream)
+    return seen
 
 
 def _toposort(specs: dict[str, StepSpec], path: Path) -> list[str]:
@@ -352,8 +477,8 @@ def _parse_profiles(raw: Any, pipeline: Pipeline) -> dict[str, dict[str, dict[st
                     raise PipelineError(
                         f"profile {pname!r}: step {step!r} has no param {param!r} (params: {known})", path
                     )
-                resolved.setdefault(step, {})[param] = check_param_type(
-                    spec.params[param], value, f"profile {pname!r}: {step}.{param}", path
+                resolved.setdefault(step, {})[param] = to_mapping(
+                    pipeline._check(spec, param, value, f"profile {pname!r}: {step}.{param}", path)
                 )
         profiles[str(pname)] = resolved
     return profiles

@@ -68,7 +68,9 @@ def run_step_in_process(spec: dict, sink, log: logging.Logger):
             spec.get("pipeline_path"),
         )
     inputs = {name: Path(p) for name, p in spec["inputs"].items()}
-    fn(ctx, inputs, dict(spec["params"]))
+    from go_pipeline.pipeline import step_params
+
+    fn(ctx, inputs, step_params(spec["module"], spec["params"]))
     return ctx
 
 

@@ -10,25 +10,26 @@ and produces a bit-identical ``gaussians.npz``.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from go_core import artifacts as art
 from go_core.depth_prior import load_depth_priors
-from go_core.gaussians import Gaussians
-from go_core.io.atomic import atomic_write_json
 from go_core.io.curves import write_curves
 from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
 from go_core.seeding import torch_generator
-from go_core.training import CheckpointSpec, TrainView, config_from_params, optimize
+from go_core.training import CheckpointSpec, TrainView, optimize
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import CoarseParams
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     t0 = time.process_time()
     scene = load_scene_artifact(inputs["scene"])
     masks = load_masks(inputs["mask"], len(scene.train))
-    init = Gaussians.load(Path(inputs["hull"]) / "gaussians.npz")
-    config = config_from_params(params)
+    init = art.read_gaussians(inputs["hull"])
     depths = load_depth_priors(inputs["depth"]) if "depth" in inputs else None
     if depths is not None and len(depths) != len(scene.train):
         depths = None
@@ -41,17 +42,18 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     def progress(step: int, info: dict) -> None:
         if state["bar"] is None:
-            state["bar"] = ctx.progress(config.iterations, "coarse 3DGS", completed=step - 1)
+            state["bar"] = ctx.progress(params.iterations, "coarse 3DGS", completed=step - 1)
         state["bar"].advance(1, loss=info["loss"], gaussians=info["n"])
 
-    spec = CheckpointSpec(Path(ctx.checkpoint_dir), every=int(params.get("checkpoint_every", 500)))
+    config = params.scaled_schedule()  # the schedules at the budget coarse.iterations
+    spec = CheckpointSpec(Path(ctx.checkpoint_dir), every=params.checkpoint_every)
     gaussians, stats = optimize(
         init, views, config, generator=generator, on_progress=progress, checkpoint=spec
     )
     if state["bar"] is not None:
         state["bar"].close()
-    gaussians.save(ctx.out_dir / "gaussians.npz")
-    write_curves(ctx.out_dir / "curves.csv", stats.loss_log)  # loss, train PSNR, Gaussians per logged step
+    art.write_gaussians(ctx.out_dir, gaussians)
+    write_curves(art.CURVES.path(ctx.out_dir), stats.loss_log)  # loss, train PSNR, Gaussians per logged step
     cpu_s = time.process_time() - t0
     info = {
         "gaussians": stats.final_count,
@@ -63,11 +65,12 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "iterations": stats.iterations,
     }
     # coarse.json stays byte-identical between a resumed and an uninterrupted run: timing goes to the record
-    atomic_write_json(
-        ctx.out_dir / "coarse.json",
+    art.write_json(
+        ctx.out_dir,
+        art.COARSE_INFO,
         {
             **info,
-            "config": asdict(config),
+            "config": config.to_dict(),
             "floater_passes": stats.floater_passes,
             "loss_log": stats.loss_log,
         },

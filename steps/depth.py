@@ -6,18 +6,22 @@ writes an empty ``depth.npz`` and the coarse stage runs without the depth loss.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from go_core.depth_prior import DEPTH_JSON, DepthEstimator, save_depth_priors
-from go_core.io.atomic import atomic_write_json
+from go_core import artifacts as art
+from go_core.depth_prior import DepthEstimator, save_depth_priors
 from go_core.scene.artifact import load_scene_artifact
 
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import DepthParams
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    model_path = str(params.get("model_path", "") or "")
+
+def run(ctx, inputs: dict[str, Path], params: DepthParams) -> None:
+    model_path = params.model_path
     if not model_path:
         reason = "no depth model configured (depth.model_path is empty): the depth loss is off"
         save_depth_priors(ctx.out_dir, [])
-        atomic_write_json(ctx.out_dir / DEPTH_JSON, {"status": "skipped", "reason": reason, "views": 0})
+        art.write_json(ctx.out_dir, art.DEPTH_INFO, {"status": "skipped", "reason": reason, "views": 0})
         ctx.record(status="skipped", reason=reason)
         return
     estimator = DepthEstimator(Path(model_path), device="cpu")
@@ -30,5 +34,5 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     bar.close()
     save_depth_priors(ctx.out_dir, maps)
     info = {"status": "ok", "model": estimator.name, "kind": "disparity", "views": len(maps)}
-    atomic_write_json(ctx.out_dir / DEPTH_JSON, info)
+    art.write_json(ctx.out_dir, art.DEPTH_INFO, info)
     ctx.record(**info)

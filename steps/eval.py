@@ -1,7 +1,7 @@
 """eval: render the test views of the final model and score them (paper protocol).
 
 Final model = the repaired Gaussians when the repair step produced them, else the coarse ones
-(``steps._common.final_model_path``). Ground truth is each test photo composited on white with its mask;
+(``go_core.artifacts.final_model``). Ground truth is each test photo composited on white with its mask;
 renders use a white background; PSNR / SSIM / LPIPS-vgg (the paper's, also ×100 as ``lpips_star``) /
 LPIPS-alex over the full image, masked variants with ``masked: true``. Missing LPIPS weights are recorded
 as unavailable (None), never replaced by another number.
@@ -12,25 +12,25 @@ Outputs: ``metrics.json`` (per view + mean), ``test_grid.png`` (rows: GT, render
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core import artifacts as art
+from go_core.io.atomic import atomic_write
 from go_core.metrics.evaluate import MetricSuite, composite, error_map, mean_metrics
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import EvalParams
 
 METRICS_SCHEMA = "go-pipeline/metrics"
 
 
-def _repair_model(inputs: dict[str, Path]) -> str:
+def _repair_model(info: dict | None) -> str:
     """Which repair model produced the result ("compact:<name> (fine-tuned)", "sd15 (...)"), or ""."""
-    info_path = Path(inputs["repair"]) / "repair.json" if inputs.get("repair") else None
-    if info_path is None or not info_path.exists():
-        return ""
-    info = json.loads(info_path.read_text())
-    if info.get("status") != "ok":
+    if info is None or info.get("status") != art.STATUS_OK:
         return ""
     model = str(info.get("repair_model", "sd15"))
     if model == "compact":
@@ -38,17 +38,14 @@ def _repair_model(inputs: dict[str, Path]) -> str:
     return f"{model} ({info.get('lora', '')})"
 
 
-def _model_reason(inputs: dict[str, Path], used: str) -> str:
+def _model_reason(inputs: dict[str, Path], used: str, info: dict | None) -> str:
     if used == "repair":
-        return f"repair ran: {_repair_model(inputs)}"
-    repair = inputs.get("repair")
-    if repair is None:
+        return f"repair ran: {_repair_model(info)}"
+    if inputs.get("repair") is None:
         return "no repair step in this pipeline"
-    info = Path(repair) / "repair.json"
-    if not info.exists():
-        return "repair produced no repair.json"
-    data = json.loads(info.read_text())
-    return f"repair status {data.get('status')!r}: {data.get('reason', 'no reason given')}"
+    if info is None:
+        return f"repair produced no {art.REPAIR_INFO.file}"
+    return f"repair status {info.get('status')!r}: {info.get('reason', 'no reason given')}"
 
 
 def render_views(gaussians, cameras, device: str = "cpu", backend: str = "auto") -> list[np.ndarray]:
@@ -97,14 +94,25 @@ def grid_image(
     return np.concatenate(cols, axis=1)
 
 
+def ground_truths(scene) -> list[np.ndarray]:
+    """The scene's test photos composited on white with their masks (the paper's ground truth)."""
+    return [composite(view.image, view.mask, 1.0) for view in scene.test]
+
+
 def evaluate_scene(
-    scene, renders: list[np.ndarray], suite: MetricSuite, masked: bool, on_view=None
+    scene,
+    renders: list[np.ndarray],
+    suite: MetricSuite,
+    masked: bool,
+    on_view=None,
+    gts: list[np.ndarray] | None = None,
 ) -> list[dict]:
     """Per-view metric dicts for the scene's test views against ``renders`` (same order);
-    ``on_view(row)`` after each view (progress)."""
+    ``on_view(row)`` after each view (progress); ``gts`` are their ground truths when already computed
+    (``ground_truths``)."""
+    gts = ground_truths(scene) if gts is None else gts
     per_view = []
-    for view, pred in zip(scene.test, renders, strict=True):
-        gt = composite(view.image, view.mask, 1.0)
+    for view, pred, gt in zip(scene.test, renders, gts, strict=True):
         row = {"name": view.name}
         row.update(suite.evaluate(pred, gt, view.mask, masked=masked))
         per_view.append(row)
@@ -113,11 +121,9 @@ def evaluate_scene(
     return per_view
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    from go_pipeline.steps._common import final_model_path
+def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     from PIL import Image
 
-    from go_core.gaussians import Gaussians
     from go_core.scene.artifact import load_scene_artifact
 
     scene = load_scene_artifact(inputs["scene"])
@@ -125,17 +131,17 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         from go_core.errors import SceneError
 
         raise SceneError("the scene has no test views to evaluate", path=inputs["scene"])
-    model_path, used = final_model_path(inputs)
-    gaussians = Gaussians.load(model_path)
-    reason = _model_reason(inputs, used)
+    final = art.final_model(inputs["coarse"], inputs.get("repair"))  # reads repair.json once
+    gaussians, used = art.read_gaussians(final.folder), final.source
+    reason = _model_reason(inputs, used, final.repair_info)
     ctx.log.info("evaluating the %s model (%d Gaussians): %s", used, len(gaussians), reason)
 
-    suite = MetricSuite.load(tuple(params.get("lpips_nets", ["vgg", "alex"])))
+    suite = MetricSuite.load(tuple(params.lpips_nets))
     for net, why in suite.unavailable.items():
         ctx.log.warning("LPIPS-%s unavailable: %s", net, why)
 
     t0 = time.perf_counter()
-    renders = render_views(gaussians, scene.test_cameras, ctx.device, params.get("backend", "auto"))
+    renders = render_views(gaussians, scene.test_cameras, ctx.device, params.backend)
     render_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     bar = ctx.progress(len(scene.test), "metrics of the test views")
@@ -143,7 +149,8 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     def advance(row: dict) -> None:
         bar.advance(1, **({"psnr": row["psnr"]} if row["psnr"] is not None else {}))
 
-    per_view = evaluate_scene(scene, renders, suite, bool(params.get("masked", False)), on_view=advance)
+    gts = ground_truths(scene)
+    per_view = evaluate_scene(scene, renders, suite, params.masked, on_view=advance, gts=gts)
     bar.close()
     metric_s = time.perf_counter() - t0
     mean = mean_metrics(per_view)
@@ -153,12 +160,12 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "version": 1,
         "model": used,
         "model_reason": reason,
-        "repair_model": _repair_model(inputs) if used == "repair" else "",
+        "repair_model": _repair_model(final.repair_info) if used == "repair" else "",
         "num_gaussians": len(gaussians),
         "protocol": {
             "ground_truth": "test image composited on white with its mask",
             "render_background": "white",
-            "region": "full image" + (" (+ masked metrics)" if params.get("masked") else ""),
+            "region": "full image" + (" (+ masked metrics)" if params.masked else ""),
             "ssim": "3DGS 11x11 Gaussian window, sigma 1.5, zero-padded borders",
             "lpips": "LPIPS v0.1 (lpips_vgg = the paper's LPIPS; lpips_star = 100 x lpips_vgg)",
         },
@@ -169,14 +176,14 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "views": per_view,
         "mean": mean,
     }
-    atomic_write_json(ctx.out_dir / "metrics.json", result)
+    art.write_json(ctx.out_dir, art.METRICS, result)
     grid = grid_image(
-        [composite(v.image, v.mask) for v in scene.test],
+        gts,
         renders,
-        int(params.get("grid_views", 8)),
-        int(params.get("thumb_size", 128)),
+        params.grid_views,
+        params.thumb_size,
     )
-    atomic_write(ctx.out_dir / "test_grid.png", lambda p: Image.fromarray(grid).save(p, format="PNG"))
+    atomic_write(art.TEST_GRID.path(ctx.out_dir), lambda p: Image.fromarray(grid).save(p, format="PNG"))
     ctx.record(
         model=used,
         model_reason=reason,

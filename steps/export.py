@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from go_pipeline.steps._common import final_model_path
+from go_pipeline.steps._common import final_model
 
-from go_core.gaussians import Gaussians
-from go_core.ply import PLY_SH_DEGREE, save_ply
+from go_core import artifacts as art
+from go_core.ply import save_ply
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import ExportParams
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    path, source = final_model_path(inputs)
-    g = Gaussians.load(path)
-    save_ply(g, ctx.out_dir / "point_cloud.ply", degree=int(params.get("sh_degree", PLY_SH_DEGREE)))
+def run(ctx, inputs: dict[str, Path], params: ExportParams) -> None:
+    g, source = final_model(inputs)
+    save_ply(g, art.POINT_CLOUD.path(ctx.out_dir), degree=params.sh_degree)
     ctx.record(source=source, gaussians=len(g), sh_degree_stored=g.sh_degree)

@@ -8,15 +8,18 @@ Outputs ``gaussians.npz`` (go_core.gaussians) and ``hull.json`` (point count, bo
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from go_core import artifacts as art
 from go_core.camera import look_at_point
-from go_core.errors import PipelineError
 from go_core.hull import points_to_gaussians, random_init, visual_hull
-from go_core.io.atomic import atomic_write_json
 from go_core.masking import load_masks
 from go_core.scene.artifact import load_scene_artifact
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import HullParams
 
 
 def random_box(cameras) -> tuple[np.ndarray, np.ndarray]:
@@ -31,16 +34,13 @@ def random_box(cameras) -> tuple[np.ndarray, np.ndarray]:
     return target - half, target + half
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    init = str(params.get("init", "hull"))
-    if init not in ("hull", "random"):
-        raise PipelineError(f"hull.init must be 'hull' or 'random', got {init!r}")
+def run(ctx, inputs: dict[str, Path], params: HullParams) -> None:
+    init = params.init
     scene = load_scene_artifact(inputs["scene"])
     cams = scene.train_cameras
     masks = load_masks(inputs["mask"], len(cams))
     images = [v.image for v in scene.train]
-    num = int(params.get("num_points", 20_000))
-    opacity = float(params.get("opacity", 0.1))
+    num, opacity = params.num_points, params.opacity
     info: dict = {"init": init}
     if init == "hull":
         res = visual_hull(
@@ -48,8 +48,8 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
             masks,
             images,
             num_points=num,
-            all_but_one=bool(params.get("all_but_one", False)),
-            threshold=float(params.get("mask_threshold", 0.5)),
+            all_but_one=params.all_but_one,
+            threshold=params.mask_threshold,
             seed=ctx.seed,
         )
         points, colors = res.points, res.colors
@@ -62,10 +62,10 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         )
     else:
         lo, hi = random_box(cams)
-        points, colors = random_init(lo, hi, int(params.get("random_points", num)), seed=ctx.seed)
+        points, colors = random_init(lo, hi, params.random_points, seed=ctx.seed)
         info.update(bbox_min=lo.tolist(), bbox_max=hi.tolist())
     g = points_to_gaussians(points, colors, opacity=opacity, sh_degree=0)
-    g.save(ctx.out_dir / "gaussians.npz")
+    art.write_gaussians(ctx.out_dir, g)
     info["points"] = len(g)
-    atomic_write_json(ctx.out_dir / "hull.json", info)
+    art.write_json(ctx.out_dir, art.HULL_INFO, info)
     ctx.record(**{k: v for k, v in info.items() if k in ("init", "points", "volume")})

@@ -1,6 +1,6 @@
 """loo: leave-one-out runs → degraded/clean image pairs and the 3D-noise statistics (paper Sec. 3.4).
 
-For each of the N training views: coarse training (the coarse step's own configuration, from coarse.json)
+For each of the N training views: coarse training (the coarse step's settings, given by the runner)
 on the other N−1 views from the hull (phase 1), then
 continued with all N views on a fixed set (phase 2); renders of the left-out view during phase 2 are the
 degraded images, the left-out photo (on white) the clean one. Statistics: per-attribute, per-channel mean
@@ -15,57 +15,43 @@ Outputs: ``loo.json`` (runs, statistics, pair index), ``loo_pairs.npz`` (``degra
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
+from go_core import artifacts as art
 from go_core.errors import SceneError
-from go_core.gaussians import Gaussians
-from go_core.io.atomic import atomic_write_json
-from go_core.repair.loo import LooSettings, load_run, run_job, run_one
+from go_core.repair.loo import load_clean_and_mask, load_run, run_is_done, run_job, run_one
 from go_core.repair.noise import difference_stats
 
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
-
-def settings_from(params: dict, sh_degree: int, coarse_config: dict | None = None) -> LooSettings:
-    return LooSettings(
-        coarse_config=coarse_config,
-        phase1_iterations=int(params.get("phase1_iterations", 6000)),
-        phase2_iterations=int(params.get("phase2_iterations", 4000)),
-        renders=int(params.get("renders", 10)),
-        compress_schedule=bool(params.get("compress_schedule", False)),
-        checkpoint_every=int(params.get("checkpoint_every", 500)),
-        sh_degree=sh_degree,
-        backend=str(params.get("backend", "auto")),
-    )
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import LooParams
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
     from go_core.io.npz import write_npz_deterministic
     from go_core.repair.data import training_views
     from go_core.training import scene_extent
 
     missing = repair_weights_missing(inputs)
     if missing:  # no repair model: the pairs would never be used, so don't pay for N coarse runs
-        write_skipped(ctx, "loo.json", "repair model weights missing (see the weights step)")
-        write_npz_deterministic(Path(ctx.out_dir) / "loo_pairs.npz", {})
+        write_skipped(ctx, art.LOO_INFO, "repair model weights missing (see the weights step)")
+        write_npz_deterministic(art.LOO_PAIRS.path(ctx.out_dir), {})
         return
     scene, views = training_views(inputs["scene"], inputs.get("mask"))
     if len(views) < 2:
         raise SceneError(f"leave-one-out needs at least 2 training views, got {len(views)}", inputs["scene"])
-    init = Gaussians.load(Path(inputs["hull"]) / "gaussians.npz")
-    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
-    coarse_json = Path(inputs["coarse"]) / "coarse.json"
-    coarse_config = json.loads(coarse_json.read_text()).get("config") if coarse_json.is_file() else None
-    settings = settings_from(params, coarse.sh_degree, coarse_config)
+    init = art.read_gaussians(inputs["hull"])
+    settings = params  # LooSettings with the coarse step's settings (params.coarse)
     extent = scene_extent([v.camera for v in views])
-    workers = max(1, int(params.get("workers", 1)))
+    workers = params.workers
     run_dirs = [Path(ctx.checkpoint_dir) / f"run_{k:02d}" for k in range(len(views))]
-    pending = [k for k, d in enumerate(run_dirs) if not (d / "done.json").is_file()]
+    pending = [k for k, d in enumerate(run_dirs) if not run_is_done(d)]
     ctx.log.info("leave-one-out: %d runs (%d to do), %d worker(s)", len(views), len(pending), workers)
     progress = ctx.progress(len(views), "leave-one-out runs", completed=len(views) - len(pending))
     if workers > 1 and len(pending) > 1:
@@ -77,7 +63,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
                 "index": k,
                 "views": views,
                 "init": init,
-                "settings": asdict(settings),
+                "settings": settings,
                 "seed": ctx.seed,
                 "run_dir": str(run_dirs[k]),
                 "extent": extent,
@@ -113,8 +99,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     arrays: dict[str, np.ndarray] = {}
     pairs = []
     for r in runs:
-        arrays[f"clean_{r.index}"] = np.load(run_dirs[r.index] / "clean.npy")
-        arrays[f"mask_{r.index}"] = np.load(run_dirs[r.index] / "mask.npy")
+        arrays[f"clean_{r.index}"], arrays[f"mask_{r.index}"] = load_clean_and_mask(run_dirs[r.index])
         for j, (step, img) in enumerate(zip(r.render_steps, r.renders, strict=True)):
             key = f"degraded_{r.index}_{j}"
             arrays[key] = img
@@ -128,10 +113,10 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
                     "mask": f"mask_{r.index}",
                 }
             )
-    write_npz_deterministic(Path(ctx.out_dir) / "loo_pairs.npz", arrays)
+    write_npz_deterministic(art.LOO_PAIRS.path(ctx.out_dir), arrays)
     summary = {
         "status": "ok",
-        "settings": asdict(settings),
+        "settings": {k: v for k, v in asdict(settings).items() if k != "workers"},  # workers: same result
         "runs": [
             {
                 "view": r.index,
@@ -145,7 +130,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "stats": stats.to_json(),
         "pairs": pairs,
     }
-    atomic_write_json(Path(ctx.out_dir) / "loo.json", summary)
+    art.write_json(ctx.out_dir, art.LOO_INFO, summary)
     ctx.record(
         workers=workers,
         runs=len(runs),

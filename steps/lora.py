@@ -24,27 +24,29 @@ and records the loss on the leave-one-out pairs before and after tuning.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from go_pipeline.steps._common import repair_weights_missing, write_skipped
 from go_pipeline.steps.weights import compact_info, repair_model, weight_paths
 
-from go_core.io.atomic import atomic_write_json
+from go_core import artifacts as art
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import LoraParams
 
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 
-def _pair_source(inputs: dict[str, Path], params: dict, views):
+def _pair_source(inputs: dict[str, Path], params: LoraParams, views):
     """Algorithm 1's pair source over the coarse model, the noise statistics and the leave-one-out pairs."""
-    from go_core.gaussians import Gaussians
     from go_core.repair.noise import NoiseStats
     from go_core.repair.pairs import LooPairs, PairSource
 
-    noise_cfg = json.loads((Path(inputs["noise_pairs"]) / "noise_pairs.json").read_text())
-    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
-    loo = LooPairs(inputs["loo"]) if params.get("use_loo_pairs", True) else None
+    noise_cfg = art.read_json(inputs["noise_pairs"], art.NOISE_PAIRS_INFO)
+    coarse = art.read_gaussians(inputs["coarse"])
+    loo = LooPairs(inputs["loo"]) if params.use_loo_pairs else None
     return PairSource(
         coarse,
         NoiseStats.from_json(noise_cfg["stats"]),
@@ -52,12 +54,12 @@ def _pair_source(inputs: dict[str, Path], params: dict, views):
         loo,
         p0=float(noise_cfg["p0"]),
         decay=float(noise_cfg["decay"]),
-        backend=str(params.get("backend", "auto")),
+        backend=params.backend,
         noise_scale=float(noise_cfg["noise_scale"]),
     )
 
 
-def _run_compact(ctx, inputs: dict[str, Path], params: dict) -> None:
+def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     """Per-scene full fine-tune of the compact restorer (see the module docstring)."""
     from safetensors.torch import save_file
 
@@ -70,19 +72,20 @@ def _run_compact(ctx, inputs: dict[str, Path], params: dict) -> None:
     info = compact_info(inputs)
     model = CompactRestorer.load(info["name"])  # missing or corrupt weights: one MissingWeightsError
     base = {"repair_model": "compact", "compact": info}
-    if not params.get("finetune", True):
-        atomic_write_json(
-            Path(ctx.out_dir) / "lora.json",
+    if not params.finetune:
+        art.write_json(
+            ctx.out_dir,
+            art.LORA_INFO,
             {**base, "status": "pretrained", "reason": "ablation: no fine-tuning (pretrained restorer only)"},
         )
         ctx.record(status="pretrained", repair_model="compact", reason="ablation: no fine-tuning")
         return
     settings = CompactTuneSettings(
-        steps=int(params.get("compact_steps", 400)),
-        lr=float(params.get("compact_lr", 1e-4)),
-        betas=tuple(float(b) for b in params.get("betas", [0.9, 0.999])),
-        resolution=int(params.get("compact_resolution", 256)),
-        checkpoint_every=int(params.get("checkpoint_every", 100)),
+        steps=params.compact_steps,
+        lr=params.compact_lr,
+        betas=params.betas,
+        resolution=params.compact_resolution,
+        checkpoint_every=params.checkpoint_every,
     )
     if settings.resolution % model.scale:
         raise ValueError(
@@ -110,19 +113,17 @@ def _run_compact(ctx, inputs: dict[str, Path], params: dict) -> None:
     resumed_from = summary.pop("resumed_from")
     tensors = {k: v.contiguous() for k, v in model.net.ncnn_tensors().items()}
     meta = {"name": info["name"], "base_sha256": info["sha256"], "tuned_steps": str(settings.steps)}
-    atomic_write(
-        Path(ctx.out_dir) / "compact.safetensors", lambda p: save_file(tensors, str(p), metadata=meta)
-    )
+    atomic_write(art.COMPACT_WEIGHTS.path(ctx.out_dir), lambda p: save_file(tensors, str(p), metadata=meta))
     out = {
         **base,
         "status": "ok",
-        "tuned": "compact.safetensors",
+        "tuned": art.COMPACT_WEIGHTS.file,
         "method": "full fine-tune (L1, Adam)",
         "settings": asdict(settings),
         "loo_pairs_l1": {"before": round(before, 6), "after": round(after, 6), "pairs": len(loo_pairs)},
         **summary,
     }
-    atomic_write_json(Path(ctx.out_dir) / "lora.json", out)
+    art.write_json(ctx.out_dir, art.LORA_INFO, out)
     log = summary["loss_log"]
     ctx.record(
         status="ok", repair_model="compact", steps=settings.steps, resumed_from=resumed_from,
@@ -132,7 +133,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: dict) -> None:
     )  # fmt: skip
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+def run(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
 
     from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
     from go_core.diffusion.models import load_repair_models, precision_dtypes
@@ -142,17 +143,18 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
     missing = repair_weights_missing(inputs)
     if missing:  # nothing configured: skip honestly (wrong paths already failed in the weights step)
-        write_skipped(ctx, "lora.json", missing, weights=weight_paths(inputs).describe())
+        write_skipped(ctx, art.LORA_INFO, missing, weights=weight_paths(inputs).describe())
         return
     if repair_model(inputs) == "compact":
         _run_compact(ctx, inputs, params)
         return
     paths = weight_paths(inputs)
     weights = paths.describe()
-    prompt = str(params.get("prompt", "a photo of xxy5syt00"))
-    if not params.get("finetune", True):
-        atomic_write_json(
-            Path(ctx.out_dir) / "lora.json",
+    prompt = params.prompt
+    if not params.finetune:
+        art.write_json(
+            ctx.out_dir,
+            art.LORA_INFO,
             {
                 "status": "pretrained",
                 "reason": "ablation: no fine-tuning (pretrained ControlNet only)",
@@ -164,14 +166,14 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         return
 
     device = str(ctx.device)
-    weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
+    weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
     models = load_repair_models(paths, device=device, dtype=weight_dtype)  # unreadable files raise
     spec = LoraSpec(
-        rank=int(params.get("rank", 64)),
-        alpha=float(params.get("alpha", params.get("rank", 64))),
-        unet=bool(params.get("unet", True)),
-        controlnet=bool(params.get("controlnet", True)),
-        text_encoder=bool(params.get("text_encoder", True)),
+        rank=params.rank,
+        alpha=params.alpha,
+        unet=params.unet,
+        controlnet=params.controlnet,
+        text_encoder=params.text_encoder,
     )
     counts = add_lora(models, spec, seed=int(ctx.seed))
     diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
@@ -179,15 +181,13 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     _, views = training_views(inputs["scene"], inputs.get("mask"))
     source = _pair_source(inputs, params, views)
     settings = TuneSettings(
-        steps=int(params.get("steps", 1800)),
-        lr=float(params.get("lr", 1e-3)),
-        betas=tuple(float(b) for b in params.get("betas", [0.9, 0.999])),
-        weight_decay=float(params.get("weight_decay", 1e-2)),
-        resolution=int(params.get("resolution", 512)),
-        checkpoint_every=int(params.get("checkpoint_every", 300)),
+        steps=params.steps,
+        lr=params.lr,
+        betas=params.betas,
+        weight_decay=params.weight_decay,
+        resolution=params.resolution,
+        checkpoint_every=params.checkpoint_every,
     )
-    if settings.resolution % 64:
-        raise ValueError(f"lora.resolution must be a multiple of 64, got {settings.resolution}")
     bar: dict = {}
 
     def advance(step: int, loss: float) -> None:
@@ -209,12 +209,12 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     if "p" in bar:
         bar["p"].close()
     resumed_from = summary.pop("resumed_from")
-    save_lora(Path(ctx.out_dir) / "lora.safetensors", models, spec, extra={"prompt": prompt})
+    save_lora(art.LORA_WEIGHTS.path(ctx.out_dir), models, spec, extra={"prompt": prompt})
     info = {
         "status": "ok",
         "weights": weights,
         "prompt": prompt,
-        "lora": "lora.safetensors",
+        "lora": art.LORA_WEIGHTS.file,
         "spec": asdict(spec),
         "lora_parameters": counts,
         "settings": asdict(settings),
@@ -222,7 +222,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "precision": str(weight_dtype).replace("torch.", ""),
         **summary,
     }
-    atomic_write_json(Path(ctx.out_dir) / "lora.json", info)
+    art.write_json(ctx.out_dir, art.LORA_INFO, info)
     log = summary["loss_log"]
     ctx.record(
         status="ok",

@@ -9,20 +9,22 @@ The method used per view is recorded (``ctx.record(method=..., views=[...])``).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from go_core import artifacts as art
 from go_core.errors import PipelineError, SceneError
-from go_core.io.atomic import atomic_write_json
 from go_core.masking import OnnxSegmenter, grabcut_mask, mask_stats, save_masks, validate_mask
 from go_core.scene.artifact import load_scene_artifact
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import MaskParams
 
 METHODS = ("auto", "provided", "grabcut", "onnx")
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    method = str(params.get("method", "auto"))
-    if method not in METHODS:
-        raise PipelineError(f"mask.method must be one of {METHODS}, got {method!r}")
-    onnx_model = str(params.get("onnx_model", "") or "")
+def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
+    method = params.method
+    onnx_model = params.onnx_model
     scene = load_scene_artifact(inputs["scene"])
     views = scene.train
     have_all = all(v.mask is not None for v in views)
@@ -33,11 +35,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         raise SceneError(f"mask.method=provided but views {missing} have no mask file or alpha channel")
     if method == "onnx" and not onnx_model:
         raise PipelineError("mask.method=onnx needs mask.onnx_model (a local .onnx path)")
-    segmenter = (
-        OnnxSegmenter(Path(onnx_model), str(params.get("onnx_normalization", "imagenet")))
-        if method == "onnx"
-        else None
-    )
+    segmenter = OnnxSegmenter(Path(onnx_model), params.onnx_normalization) if method == "onnx" else None
 
     masks, info = [], []
     bar = ctx.progress(len(views), "masks")
@@ -47,9 +45,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
             m = v.mask
             validate_mask(m, v.image.shape[:2], label)
         elif method == "grabcut":
-            m = grabcut_mask(
-                v.image, int(params.get("grabcut_iterations", 5)), float(params.get("grabcut_border", 0.03))
-            )
+            m = grabcut_mask(v.image, params.grabcut_iterations, params.grabcut_border)
         else:
             m = segmenter(v.image)
         if float((m > 0.5).mean()) == 0.0:
@@ -60,5 +56,5 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     bar.close()
     save_masks(ctx.out_dir, masks)
     summary = {"method": method, "onnx_model": onnx_model if method == "onnx" else None, "views": info}
-    atomic_write_json(ctx.out_dir / "mask.json", summary)
+    art.write_json(ctx.out_dir, art.MASK_INFO, summary)
     ctx.record(method=method, views=len(masks), foreground=[i["foreground_fraction"] for i in info])

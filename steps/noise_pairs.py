@@ -9,20 +9,23 @@ writes ``preview.png``: one row per reference view: photo on white | coarse rend
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
-from go_core.gaussians import Gaussians
-from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core import artifacts as art
+from go_core.io.atomic import atomic_write
 from go_core.repair.data import on_white, render_rgb_alpha, to_uint8, training_views
 from go_core.repair.noise import NoiseStats
 from go_core.repair.pairs import noise_pair
 from go_core.seeding import torch_generator
 
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import NoisePairsParams
 
 
 def _thumb(img: np.ndarray, size: int) -> np.ndarray:
@@ -35,28 +38,28 @@ def _thumb(img: np.ndarray, size: int) -> np.ndarray:
     )
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+def run(ctx, inputs: dict[str, Path], params: NoisePairsParams) -> None:
     missing = repair_weights_missing(inputs)
     if missing:
-        write_skipped(ctx, "noise_pairs.json", "repair model weights missing (see the weights step)")
+        write_skipped(ctx, art.NOISE_PAIRS_INFO, "repair model weights missing (see the weights step)")
         return
-    loo = json.loads((Path(inputs["loo"]) / "loo.json").read_text())
+    loo = art.read_json(inputs["loo"], art.LOO_INFO)
     stats = NoiseStats.from_json(loo["stats"])
-    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
+    coarse = art.read_gaussians(inputs["coarse"])
     _, views = training_views(inputs["scene"], inputs.get("mask"))
-    backend = str(params.get("backend", "auto"))
-    scale = float(params.get("noise_scale", 1.0))
+    backend = params.backend
+    scale = params.noise_scale
     config = {
         "status": "ok",
         "stats": stats.to_json(),
-        "p0": float(params.get("p0", 1.0)),
-        "decay": float(params.get("decay", 0.995)),
+        "p0": params.p0,
+        "decay": params.decay,
         "noise_scale": scale,
         "attributes": ["means", "log_scales", "quats", "opacity_logits"],
         "loo_pairs": len(loo.get("pairs", [])),
     }
     rows = []
-    size = int(params.get("preview_size", 128))
+    size = params.preview_size
     if size > 0:
         gen = torch_generator(int(ctx.seed), "noise_pairs_preview")
         for k, v in enumerate(views):
@@ -74,7 +77,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
 
             Image.fromarray(sheet).save(tmp, format="PNG")
 
-        atomic_write(Path(ctx.out_dir) / "preview.png", write)
-        config["preview"] = "preview.png"
-    atomic_write_json(Path(ctx.out_dir) / "noise_pairs.json", config)
+        atomic_write(art.NOISE_PAIRS_PREVIEW.path(ctx.out_dir), write)
+        config["preview"] = art.NOISE_PAIRS_PREVIEW.file
+    art.write_json(ctx.out_dir, art.NOISE_PAIRS_INFO, config)
     ctx.record(p0=config["p0"], decay=config["decay"], loo_pairs=config["loo_pairs"], preview=size > 0)

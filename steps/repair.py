@@ -24,15 +24,19 @@ for the last refresh's views).
 
 from __future__ import annotations
 
-import json
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from go_pipeline.steps._common import write_skipped
 
+from go_core import artifacts as art
 from go_core.errors import GoError, first_line
-from go_core.io.atomic import atomic_write, atomic_write_json
+from go_core.io.atomic import atomic_write
 from go_core.io.curves import write_curves
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import RepairParams
 
 SKIP_IF_SKIPPED = ("lora",)  # the runner skips this step, without a worker, when that input skipped
 
@@ -64,25 +68,6 @@ def _lpips(net: str, weight: float):
     return (lambda a, b: model(a * 2.0 - 1.0, b * 2.0 - 1.0)), f"on (LPIPS-{net})"
 
 
-def settings_from(params: dict):
-    from go_core.repair.repair import RepairSettings
-
-    names = {f.name for f in fields(RepairSettings)} - {"densify"}
-    kw = {k: params[k] for k in names if k in params}
-    for key in ("t_range", "strength_range"):
-        if key in kw:
-            kw[key] = tuple(float(x) for x in kw[key])
-    default = RepairSettings().densify
-    kw["densify"] = {
-        "start_iter": int(params.get("densify_from", default["start_iter"])),
-        "stop_iter": int(params.get("densify_until", default["stop_iter"])),
-        "every": int(params.get("densify_every", default["every"])),
-        "reset_every": int(params.get("opacity_reset_every", default["reset_every"])),
-        "min_opacity": float(params.get("prune_opacity", default["min_opacity"])),
-    }
-    return RepairSettings(**kw)
-
-
 def _preview(path: Path, cache, size: int = 128) -> None:
     import numpy as np
     from PIL import Image
@@ -105,7 +90,7 @@ def _preview(path: Path, cache, size: int = 128) -> None:
     atomic_write(path, lambda tmp: Image.fromarray(sheet).save(tmp, format="PNG"))
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
 
     from go_core.diffusion.lora import add_lora, load_lora_state_dict, read_lora
     from go_core.diffusion.models import (
@@ -114,30 +99,26 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         precision_dtypes,
     )
     from go_core.diffusion.sampler import RepairDiffusion
-    from go_core.gaussians import Gaussians
     from go_core.repair.data import training_views
     from go_core.repair.repair import repair_gaussians
 
-    mode = str(params.get("mode", "full"))
-    if mode not in ("full", "no_repair"):
-        raise GoError(f"repair.mode must be 'full' or 'no_repair', got {mode!r}")
+    mode = params.mode
     if mode == "no_repair":
-        write_skipped(ctx, "repair.json", "ablation: no repair (mode no_repair)")
+        write_skipped(ctx, art.REPAIR_INFO, "ablation: no repair (mode no_repair)")
         return
-    lora_info = json.loads((Path(inputs["lora"]) / "lora.json").read_text())
+    lora_info = art.read_json(inputs["lora"], art.LORA_INFO)
     if lora_info.get("status") == "skipped":
-        write_skipped(ctx, "repair.json", f"lora step skipped: {lora_info.get('reason', 'no reason given')}")
+        reason = lora_info.get("reason", "no reason given")
+        write_skipped(ctx, art.REPAIR_INFO, f"lora step skipped: {reason}")
         return
     device = str(ctx.device)
     repair_model = str(lora_info.get("repair_model", "sd15"))
-    settings = settings_from(params)
-    if settings.loss not in ("lrep", "sds"):
-        raise GoError(f"repair.loss must be 'lrep' or 'sds', got {settings.loss!r}")
+    settings = params  # RepairSettings with the coarse step's settings (params.coarse)
     if repair_model == "compact":
         if settings.loss == "sds":
             raise GoError("repair.loss 'sds' needs the sd15 repair model (weights.repair_model)")
-        diffusion, lora_note = _compact_engine(inputs, lora_info, bool(params.get("use_lora", True)), device)
-        res = int(params.get("compact_resolution", 256))
+        diffusion, lora_note = _compact_engine(inputs, lora_info, params.use_lora, device)
+        res = params.compact_resolution
         if res % diffusion.restorer.scale:
             raise GoError(
                 f"repair.compact_resolution must be a multiple of {diffusion.restorer.scale}, got {res}"
@@ -145,9 +126,9 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         settings = replace(settings, resolution=res)
     else:
         paths = WeightPaths(**lora_info["weights"])
-        weight_dtype, autocast_dtype = precision_dtypes(device, str(params.get("precision", "auto")))
+        weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
         models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
-        use_lora = bool(params.get("use_lora", True)) and lora_info.get("status") == "ok"
+        use_lora = params.use_lora and lora_info.get("status") == "ok"
         if use_lora:
             spec, state = read_lora(Path(inputs["lora"]) / lora_info["lora"])
             add_lora(models, spec)
@@ -159,14 +140,12 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
             prompt=str(lora_info.get("prompt", "a photo of xxy5syt00")),
             device=device,
             autocast_dtype=autocast_dtype,
-            guidance_scale=float(params.get("guidance_scale", 1.0)),
+            guidance_scale=params.guidance_scale,
         )
         lora_note = "fine-tuned" if use_lora else "pretrained (no fine-tuning)"
-        if settings.resolution % 64:
-            raise GoError(f"repair.resolution must be a multiple of 64, got {settings.resolution}")
-    lpips, lpips_note = _lpips(str(params.get("lpips_net", "vgg")), settings.lpips)
+    lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
     _, views = training_views(inputs["scene"], inputs.get("mask"))
-    coarse = Gaussians.load(Path(inputs["coarse"]) / "gaussians.npz")
+    coarse = art.read_gaussians(inputs["coarse"])
     bar: dict = {}
 
     def advance(step: int, info: dict) -> None:
@@ -188,9 +167,9 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     if "p" in bar:
         bar["p"].close()
     out = Path(ctx.out_dir)
-    result.save(out / "gaussians.npz")
-    write_curves(out / "curves.csv", facts["loss_log"])  # loss, train PSNR, Gaussians per logged step
-    _preview(out / "repair_preview.png", facts["cache"])
+    art.write_gaussians(out, result)
+    write_curves(art.CURVES.path(out), facts["loss_log"])  # loss, train PSNR, Gaussians per logged step
+    _preview(art.REPAIR_PREVIEW.path(out), facts["cache"])
     info = {
         "status": "ok",
         "mode": mode,
@@ -203,7 +182,7 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
         "count": len(result),
         **summary,
     }
-    atomic_write_json(out / "repair.json", info)
+    art.write_json(out, art.REPAIR_INFO, info)
     ctx.record(
         status="ok",
         repair_model=repair_model,

@@ -4,16 +4,19 @@ the artifact every downstream step reads (``go_core.scene.artifact``: ``scene.js
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from go_core.errors import SceneError
 from go_core.scene.artifact import MANIFEST, save_scene_artifact
 from go_core.scene.loader import load_scene
 
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import SceneParams
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+
+def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
     """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""
-    views = int(params.get("views", 0))
-    max_size = int(params.get("max_size", 0))
+    views, max_size = params.views, params.max_size
     scene = load_scene(inputs["folder"], views=views, max_size=max_size)
     manifest = save_scene_artifact(scene, ctx.out_dir, views_requested=views, max_size=max_size)
     from go_pipeline.manifest import schema_problems

@@ -6,17 +6,21 @@ H.264, written bit-exactly so a rerun gives the same bytes)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
-from go_pipeline.steps._common import final_model_path
+from go_pipeline.steps._common import final_model
 
-from go_core.errors import GoError
+from go_core import artifacts as art
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write
 from go_core.render import render_camera
 from go_core.scene.artifact import load_scene_cameras
 from go_core.trajectory import camera_path_cameras, contact_sheet, turntable_cameras
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import TurntableParams
 
 
 def render_frames(
@@ -71,30 +75,26 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: float) -> None:
     writer.close()
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
+def run(ctx, inputs: dict[str, Path], params: TurntableParams) -> None:
     import imageio.v3 as iio
 
-    path_frames = int(params.get("path_frames", 15))
-    if path_frames < 1:
-        raise GoError(f"turntable.path_frames must be at least 1, got {path_frames}")
-    path, source = final_model_path(inputs)
-    g = Gaussians.load(path)
+    path_frames, max_size = params.path_frames, params.max_size
+    g, source = final_model(inputs)
     train_cams, _ = load_scene_cameras(inputs["scene"])
-    max_size = int(params.get("max_size", 256))
-    cams = turntable_cameras(train_cams, int(params.get("frames", 60)), max_size)
-    bg = torch.tensor([float(x) for x in params.get("background", [1.0, 1.0, 1.0])], dtype=torch.float32)
-    backend = str(params.get("backend", "auto"))
+    cams = turntable_cameras(train_cams, params.frames, max_size)
+    bg = torch.tensor(params.background, dtype=torch.float32)
+    backend = params.backend
     frames = render_frames(ctx, g, cams, bg, backend, "turntable")
-    fps = float(params.get("fps", 20))
+    fps = float(params.fps)
     atomic_write(
-        ctx.out_dir / "turntable.gif",
+        art.TURNTABLE.path(ctx.out_dir),
         lambda p: iio.imwrite(p, np.stack(frames), extension=".gif", duration=1000.0 / fps, loop=0),
     )
-    sheet = contact_sheet(frames, int(params.get("sheet_frames", 8)))
-    atomic_write(ctx.out_dir / "contact_sheet.png", lambda p: iio.imwrite(p, sheet, extension=".png"))
+    sheet = contact_sheet(frames, params.sheet_frames)
+    atomic_write(art.CONTACT_SHEET.path(ctx.out_dir), lambda p: iio.imwrite(p, sheet, extension=".png"))
     path_cams = camera_path_cameras(train_cams, path_frames, max_size)
     video = render_frames(ctx, g, path_cams, bg, backend, "camera path video")
-    atomic_write(ctx.out_dir / "camera_path.mp4", lambda p: write_mp4(p, video, fps))
+    atomic_write(art.CAMERA_PATH_VIDEO.path(ctx.out_dir), lambda p: write_mp4(p, video, fps))
     ctx.record(
         source=source, frames=len(frames), path_frames=len(video), size=[cams[0].width, cams[0].height]
     )

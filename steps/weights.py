@@ -21,13 +21,14 @@ Output: ``weights.json`` ``{"status": "ok" | "missing", "reason", "repair_model"
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from go_core.errors import GoError, MissingWeightsError
-from go_core.io.atomic import atomic_write_json
+from go_core import artifacts as art
+from go_core.errors import MissingWeightsError
 
-REPAIR_MODELS = ("auto", "sd15", "compact")
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import WeightsParams
 
 
 def _compact_info(name: str) -> dict:
@@ -46,19 +47,21 @@ def _compact_info(name: str) -> dict:
     }
 
 
-def run(ctx, inputs: dict[str, Path], params: dict) -> None:
-    from go_core.compact.weights import DEFAULT_MODEL
+def run(ctx, inputs: dict[str, Path], params: WeightsParams) -> None:
     from go_core.diffusion.models import WeightPaths, missing_weights
 
-    choice = str(params.get("repair_model", "auto"))
-    if choice not in REPAIR_MODELS:
-        raise GoError(f"weights.repair_model must be one of {', '.join(REPAIR_MODELS)}, got {choice!r}")
-    paths = WeightPaths.resolve(params, env={})  # the runner already expanded ${ENV} defaults
+    choice = params.repair_model
+    paths = WeightPaths(  # the runner already expanded the ${ENV} defaults
+        sd15=params.sd15_path,
+        controlnet=params.controlnet_path,
+        clip=params.clip_path,
+        single_file_config=params.single_file_config,
+    )
     problems = missing_weights(paths)
     if choice != "compact" and problems and (paths.sd15 or paths.controlnet):
         raise MissingWeightsError("repair model weights: " + " | ".join(problems))
     if choice == "compact" or (choice == "auto" and problems):
-        compact = _compact_info(str(params.get("compact_model", DEFAULT_MODEL)))
+        compact = _compact_info(params.compact_model)
         why = "chosen" if choice == "compact" else "auto: no SD1.5 + ControlNet weights configured"
         info = {"status": "ok", "reason": "", "repair_model": "compact", "compact": compact,
                 "paths": paths.describe(), "choice": why}  # fmt: skip
@@ -71,23 +74,21 @@ def run(ctx, inputs: dict[str, Path], params: dict) -> None:
     else:
         info = {"status": "ok", "reason": "", "repair_model": "sd15", "paths": paths.describe()}
         ctx.record(status="ok", repair_model="sd15")
-    atomic_write_json(Path(ctx.out_dir) / "weights.json", info)
+    art.write_json(ctx.out_dir, art.WEIGHTS_INFO, info)
 
 
 def repair_model(inputs: dict[str, Path]) -> str:
     """ "sd15" | "compact": the repair model the weights step chose."""
-    info = json.loads((Path(inputs["weights"]) / "weights.json").read_text())
-    return str(info.get("repair_model", "sd15"))
+    return str(art.read_json(inputs["weights"], art.WEIGHTS_INFO).get("repair_model", "sd15"))
 
 
 def compact_info(inputs: dict[str, Path]) -> dict:
     """The weights step's record of the compact model (name, file, sha256, ...)."""
-    return dict(json.loads((Path(inputs["weights"]) / "weights.json").read_text())["compact"])
+    return dict(art.read_json(inputs["weights"], art.WEIGHTS_INFO)["compact"])
 
 
 def weight_paths(inputs: dict[str, Path]):
     """The checked ``WeightPaths`` from the weights step's artifact."""
     from go_core.diffusion.models import WeightPaths
 
-    info = json.loads((Path(inputs["weights"]) / "weights.json").read_text())
-    return WeightPaths(**info["paths"])
+    return WeightPaths(**art.read_json(inputs["weights"], art.WEIGHTS_INFO)["paths"])

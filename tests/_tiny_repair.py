@@ -8,6 +8,7 @@ from pathlib import Path
 
 import torch
 
+from go_pipeline.pipeline import step_params
 from tests._threads import one_thread  # noqa: F401  (re-exported for the repair tests)
 
 _BUILT: dict[str, dict[str, str]] = {}  # tiny weights already written in this test session (read-only use)
@@ -104,7 +105,8 @@ def run_weights_step(root: Path, params: dict) -> Path:
 
     ctx = FakeCtx(root, "weights")
     chosen = {k: params[k] for k in ("repair_model", "compact_model") if k in params}
-    weights.run(ctx, {}, {"repair_model": "sd15", **chosen, **{k: params.get(k, "") for k in WEIGHT_KEYS}})
+    values = {"repair_model": "sd15", **chosen, **{k: params.get(k, "") for k in WEIGHT_KEYS}}
+    weights.run(ctx, {}, step_params(weights.__name__, values))
     return ctx.out_dir
 
 

@@ -17,6 +17,7 @@ from go_core.ply import load_ply
 from go_core.render import render_gaussians
 from go_core.scene.artifact import load_scene_artifact, save_scene_artifact
 from go_core.scene.types import Scene, View
+from go_pipeline.pipeline import step_params
 
 SIZE = 32
 
@@ -79,18 +80,18 @@ def test_steps_end_to_end(tmp_path):
 
     inputs = {"scene": _scene(tmp_path)}
     ctx = Ctx(tmp_path, "mask")
-    mask.run(ctx, inputs, {"method": "auto"})
+    mask.run(ctx, inputs, step_params(mask.__name__, {"method": "auto"}))
     assert ctx.records["method"] == "provided"
     inputs["mask"] = ctx.out_dir
 
     ctx = Ctx(tmp_path, "hull")
-    hull.run(ctx, inputs, {"num_points": 500})
+    hull.run(ctx, inputs, step_params(hull.__name__, {"num_points": 500}))
     info = json.loads((ctx.out_dir / "hull.json").read_text())
     assert info["points"] == 500 and info["volume"] > 0
     inputs["hull"] = ctx.out_dir
 
     ctx = Ctx(tmp_path, "depth")
-    depth.run(ctx, inputs, {"model_path": ""})
+    depth.run(ctx, inputs, step_params(depth.__name__, {"model_path": ""}))
     assert ctx.records["status"] == "skipped"
     inputs["depth"] = ctx.out_dir
 
@@ -107,7 +108,7 @@ def test_steps_end_to_end(tmp_path):
         "checkpoint_every": 10,
     }
     ctx = Ctx(tmp_path, "coarse")
-    coarse.run(ctx, inputs, params)
+    coarse.run(ctx, inputs, step_params(coarse.__name__, params))
     rec = ctx.records
     assert rec["gaussians"] > 0 and rec["depth_loss"].startswith("off")
     first = (ctx.out_dir / "gaussians.npz").read_bytes()
@@ -120,7 +121,7 @@ def test_steps_end_to_end(tmp_path):
     ctx2 = Ctx(tmp_path, "coarse")
     ctx2.out_dir = tmp_path / "coarse_again"
     ctx2.out_dir.mkdir()
-    coarse.run(ctx2, inputs, params)
+    coarse.run(ctx2, inputs, step_params(coarse.__name__, params))
     assert ctx2.records["resumed_from"] == 20
     g1 = np.load(ctx.out_dir / "gaussians.npz")
     g2 = np.load(ctx2.out_dir / "gaussians.npz")
@@ -129,14 +130,20 @@ def test_steps_end_to_end(tmp_path):
     inputs["coarse"] = ctx.out_dir
 
     ctx = Ctx(tmp_path, "export")
-    export.run(ctx, inputs, {})
+    export.run(ctx, inputs, step_params(export.__name__, {}))
     back = load_ply(ctx.out_dir / "point_cloud.ply", sh_degree=2)
     saved = Gaussians.load(inputs["coarse"] / "gaussians.npz")
     assert torch.equal(back.means, saved.means) and torch.equal(back.sh, saved.sh)
     assert ctx.records["source"] == "coarse"
 
     ctx = Ctx(tmp_path, "turntable")
-    turntable.run(ctx, inputs, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4, "path_frames": 3})
+    turntable.run(
+        ctx,
+        inputs,
+        step_params(
+            turntable.__name__, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4, "path_frames": 3}
+        ),
+    )
     import imageio.v3 as iio
 
     frames = iio.imread(ctx.out_dir / "turntable.gif", index=None)
@@ -159,10 +166,13 @@ def test_steps_end_to_end(tmp_path):
 def test_mask_step_rejects_bad_choices(tmp_path):
     from go_pipeline.steps import mask
 
+    from go_core.config import SettingError
     from go_core.errors import PipelineError
 
     inputs = {"scene": _scene(tmp_path)}
-    with pytest.raises(PipelineError):
-        mask.run(Ctx(tmp_path, "mask"), inputs, {"method": "magic"})
+    with pytest.raises(SettingError, match="method: must be one of 'auto' | 'provided'"):
+        step_params(mask.__name__, {"method": "magic"})  # the runner says so at plan time
     with pytest.raises(PipelineError, match="onnx_model"):
-        mask.run(Ctx(tmp_path, "mask"), inputs, {"method": "onnx", "onnx_model": ""})
+        mask.run(
+            Ctx(tmp_path, "mask"), inputs, step_params(mask.__name__, {"method": "onnx", "onnx_model": ""})
+        )

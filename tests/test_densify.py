@@ -31,7 +31,9 @@ def _setup(scales, opacities, grads, colour_grads=None, **cfg):
     loss = sum((p * torch.arange(1, p.numel() + 1).reshape(p.shape)).sum() for p in opt.params.values())
     loss.backward()
     opt.step()
-    config = DensifyConfig(**{"start_iter": 0, "every": 10, "reset_every": 0, "max_gaussians": 0, **cfg})
+    config = DensifyConfig(
+        **{"densify_from": 0, "densify_every": 10, "opacity_reset_every": 0, "max_gaussians": 0, **cfg}
+    )
     strat = DensifyStrategy(config, EXTENT, n)
     strat.grad_accum = torch.tensor(grads, dtype=torch.float32)
     strat.vis_count = torch.ones(n)
@@ -84,7 +86,7 @@ def test_no_contribution_pruning_and_budget():
 
 
 def test_opacity_reset_and_activity_window():
-    opt, strat = _setup([0.005] * 3, [0.9, 0.5, 0.005], [0.0] * 3, reset_every=20, stop_iter=100)
+    opt, strat = _setup([0.005] * 3, [0.9, 0.5, 0.005], [0.0] * 3, opacity_reset_every=20, densify_until=100)
     strat.after_step(20, opt, torch.Generator().manual_seed(0))
     assert torch.sigmoid(opt.params["opacity_logits"]).max().item() <= 0.01 + 1e-6
     assert strat.counts["opacity_resets"] == 1

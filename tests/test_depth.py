@@ -8,6 +8,7 @@ import torch
 
 from go_core.depth_prior import DepthEstimator, load_depth_priors, save_depth_priors
 from go_core.errors import MissingWeightsError
+from go_pipeline.pipeline import step_params
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
@@ -77,7 +78,7 @@ def test_depth_step_with_a_local_model_writes_one_map_per_training_view(tiny_dpt
     folder, _ = tiny_dpt
     inputs = {"scene": _scene(tmp_path)}
     ctx = Ctx(tmp_path, "depth")
-    depth.run(ctx, inputs, {"model_path": str(folder)})
+    depth.run(ctx, inputs, step_params(depth.__name__, {"model_path": str(folder)}))
     assert ctx.records["status"] == "ok" and ctx.records["kind"] == "disparity"
     maps = load_depth_priors(ctx.out_dir)
     assert len(maps) == 4 and all(m.shape == (32, 32) and np.isfinite(m).all() for m in maps)

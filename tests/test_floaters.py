@@ -38,15 +38,17 @@ def test_knn_mean_distance_matches_brute_force():
 
 
 def test_schedules_and_due_steps():
-    code = FloaterConfig(schedule="code")
-    paper = FloaterConfig(schedule="paper")
-    assert code.lambda_at(500) == pytest.approx(1.0) and code.lambda_at(6000) == pytest.approx(2.33)
-    assert paper.lambda_at(500) == pytest.approx(1.0) and paper.lambda_at(6000) == pytest.approx(0.0)
-    assert code.lambda_at(3250) == pytest.approx(1.665)
-    assert [s for s in range(1, 10001) if code.due(s)] == list(range(500, 6001, 500))
-    assert not FloaterConfig(enabled=False).due(500)
+    code = FloaterConfig(floater_schedule="code")
+    paper = FloaterConfig(floater_schedule="paper")
+    assert code.floater_lambda_at(500) == pytest.approx(1.0)
+    assert code.floater_lambda_at(6000) == pytest.approx(2.33)
+    assert paper.floater_lambda_at(500) == pytest.approx(1.0)
+    assert paper.floater_lambda_at(6000) == pytest.approx(0.0)
+    assert code.floater_lambda_at(3250) == pytest.approx(1.665)
+    assert [s for s in range(1, 10001) if code.floater_due(s)] == list(range(500, 6001, 500))
+    assert not FloaterConfig(floaters=False).floater_due(500)
     with pytest.raises(ValueError):
-        FloaterConfig(schedule="cosine")
+        FloaterConfig(floater_schedule="cosine")
 
 
 def test_removal_is_capped():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import torch
 
 from go_core.gaussians import Gaussians
 from go_core.repair.noise import difference_stats
+from go_pipeline.pipeline import step_params
 from tests._tiny_repair import FakeCtx, one_thread, synthetic_inputs
 
 PARAMS = {"phase1_iterations": 20, "phase2_iterations": 10, "renders": 3, "checkpoint_every": 10}
@@ -30,7 +32,7 @@ def done(tmp_path_factory):
     with one_thread():
         dirs = synthetic_inputs(root)
         ctx = FakeCtx(root, "loo")
-        loo.run(ctx, dirs, PARAMS)
+        loo.run(ctx, dirs, step_params(loo.__name__, PARAMS))
     return root, dirs, ctx
 
 
@@ -83,10 +85,10 @@ def test_killed_loo_resumes_without_redoing_finished_runs(done, tmp_path, monkey
     monkeypatch.setattr(loo, "run_one", flaky)
     ctx = FakeCtx(tmp_path, "loo")
     with pytest.raises(KeyboardInterrupt):
-        loo.run(ctx, dirs, PARAMS)
+        loo.run(ctx, dirs, step_params(loo.__name__, PARAMS))
     assert calls == [0, 1, 2]
     ctx2 = FakeCtx(tmp_path, "loo")  # same checkpoint folder, fresh output folder
-    loo.run(ctx2, dirs, PARAMS)
+    loo.run(ctx2, dirs, step_params(loo.__name__, PARAMS))
     assert calls == [0, 1, 2, 2, 3]  # finished runs 0 and 1 are not run again
     for name in ("loo.json", "loo_pairs.npz"):
         assert (ctx2.out_dir / name).read_bytes() == (first.out_dir / name).read_bytes()
@@ -98,21 +100,19 @@ def test_parallel_workers_give_the_same_artifacts(done, tmp_path):
 
     _, dirs, first = done
     ctx = FakeCtx(tmp_path, "loo")
-    loo.run(ctx, dirs, {**PARAMS, "workers": 2})
+    loo.run(ctx, dirs, step_params(loo.__name__, {**PARAMS, "workers": 2}))
     assert ctx.records["workers"] == 2
     for name in ("loo.json", "loo_pairs.npz"):
         assert (ctx.out_dir / name).read_bytes() == (first.out_dir / name).read_bytes()
 
 
 def test_compressed_schedule_scales_every_step_schedule_to_phase_one():
-    from go_core.repair.loo import compressed_config
     from go_core.training import CoarseConfig
 
     base = CoarseConfig()  # 10 000 its: densify 500..6000 every 100, reset 1000, floaters 500..6000 every 500
-    c = compressed_config(base, 1000)
-    assert c.iterations == 1000 and c.sh_increase_every == 100 and c.lr.means_max_steps == 3000
-    d = c.densify
-    assert (d.start_iter, d.stop_iter, d.every, d.reset_every) == (50, 600, 10, 100)
-    assert (c.floaters.start_iter, c.floaters.stop_iter, c.floaters.every) == (50, 600, 50)
-    assert c.densify.grad_threshold == base.densify.grad_threshold and c.lr.sh0 == base.lr.sh0
-    assert compressed_config(base, 20_000).densify == base.densify  # never stretched
+    c = base.compressed(1000)
+    assert c.iterations == 1000 and c.sh_increase_every == 100 and c.position_lr_max_steps == 3000
+    assert (c.densify_from, c.densify_until, c.densify_every, c.opacity_reset_every) == (50, 600, 10, 100)
+    assert (c.floater_from, c.floater_until, c.floater_every) == (50, 600, 50)
+    assert c.densify_grad_threshold == base.densify_grad_threshold and c.feature_lr == base.feature_lr
+    assert base.compressed(20_000) == replace(base, iterations=20_000)  # never stretched

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from go_core.regularizers import (
     regularization_loss,
 )
 from go_core.render import render
-from go_core.training import CoarseConfig, config_from_params, optimize, scale_schedule
+from go_core.training import CoarseConfig, optimize
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 
@@ -146,9 +147,8 @@ def _tiny_problem():
 
 def test_loop_with_every_regulariser_is_deterministic_and_logs_the_terms():
     init, views, tiny_config = _tiny_problem()
-    cfg = tiny_config(30)
-    cfg.regularize = RegularizerConfig(
-        drop_gamma=0.3, lambda_outside=0.1, lambda_anisotropy=0.01, lambda_opacity=0.01
+    cfg = replace(
+        tiny_config(30), drop_gamma=0.3, lambda_outside=0.1, lambda_anisotropy=0.01, lambda_opacity=0.01
     )
     a, sa = optimize(init, views, cfg, generator=torch.Generator().manual_seed(5))
     b, sb = optimize(init, views, cfg, generator=torch.Generator().manual_seed(5))
@@ -165,8 +165,7 @@ def test_loop_with_every_regulariser_is_deterministic_and_logs_the_terms():
 def test_regularisers_off_leave_the_run_bit_identical():
     init, views, tiny_config = _tiny_problem()
     a, _ = optimize(init, views, tiny_config(20), generator=torch.Generator().manual_seed(2))
-    cfg = tiny_config(20)
-    cfg.regularize = RegularizerConfig(drop_gamma=0.0, max_anisotropy=3.0)
+    cfg = replace(tiny_config(20), drop_gamma=0.0, max_anisotropy=3.0)
     b, _ = optimize(init, views, cfg, generator=torch.Generator().manual_seed(2))
     for name, t in a.tensors().items():
         assert torch.equal(getattr(b, name), t), name
@@ -187,6 +186,11 @@ PAPER = {
     "floater_from": 500,
     "floater_until": 6000,
 }
+
+
+def scale_schedule(values: dict) -> dict:
+    config = CoarseConfig.from_dict(values).scaled_schedule()
+    return {k: getattr(config, k) for k in values}
 
 
 def test_budget_scales_every_schedule():
@@ -210,14 +214,24 @@ def test_budget_scales_every_schedule():
     as_written = {**PAPER, "iterations": 1000, "schedule_iterations": 0}
     assert scale_schedule(as_written) == as_written
     # params left out take the CoarseConfig (paper) defaults, scaled too
-    cfg = config_from_params({"iterations": 2000, "schedule_iterations": 10_000})
-    assert (cfg.densify.start_iter, cfg.densify.stop_iter, cfg.floaters.every) == (100, 1200, 100)
-    assert cfg.sh_increase_every == 200 and cfg.lr.means_max_steps == 6000
+    cfg = CoarseConfig.from_dict({"iterations": 2000, "schedule_iterations": 10_000}).scaled_schedule()
+    assert (cfg.densify_from, cfg.densify_until, cfg.floater_every) == (100, 1200, 100)
+    assert cfg.sh_increase_every == 200 and cfg.position_lr_max_steps == 6000
 
 
 def test_regulariser_params_map_to_the_config():
-    cfg = config_from_params(
+    cfg = CoarseConfig.from_dict(
         {"drop_gamma": 0.2, "lambda_outside": 0.1, "lambda_anisotropy": 0.01, "max_anisotropy": 8,
          "lambda_opacity": 0.001}
     )  # fmt: skip
-    assert cfg.regularize == RegularizerConfig(0.2, 0.1, 0.01, 8.0, 0.001)
+    assert (
+        isinstance(cfg, RegularizerConfig)
+        and cfg.max_anisotropy == 8.0
+        and isinstance(cfg.max_anisotropy, float)
+    )
+    assert (cfg.drop_gamma, cfg.lambda_outside, cfg.lambda_anisotropy, cfg.lambda_opacity) == (
+        0.2,
+        0.1,
+        0.01,
+        0.001,
+    )

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from go_pipeline.pipeline import step_params
 from tests._tiny_repair import (
     WEIGHT_KEYS,
     FakeCtx,
@@ -48,10 +49,10 @@ def upstream(tmp_path_factory):
     with one_thread():
         dirs = synthetic_inputs(root)
         ctx = FakeCtx(root, "loo")
-        loo.run(ctx, dirs, LOO)
+        loo.run(ctx, dirs, step_params(loo.__name__, LOO))
         dirs["loo"] = ctx.out_dir
         ctx = FakeCtx(root, "noise_pairs")
-        noise_pairs.run(ctx, dirs, {"preview_size": 32})
+        noise_pairs.run(ctx, dirs, step_params(noise_pairs.__name__, {"preview_size": 32}))
         dirs["noise_pairs"] = ctx.out_dir
         weights = tiny_weights(root / "weights")
     return root, dirs, weights
@@ -63,7 +64,11 @@ def _lora(root, dirs, params, name="lora"):
 
     weights = run_weights_step(root / f"{name}_weights", params)
     ctx = FakeCtx(root, name)
-    lora.run(ctx, {**dirs, "weights": weights}, {k: v for k, v in params.items() if k not in WEIGHT_KEYS})
+    lora.run(
+        ctx,
+        {**dirs, "weights": weights},
+        step_params(lora.__name__, {k: v for k, v in params.items() if k not in WEIGHT_KEYS}),
+    )
     return ctx
 
 
@@ -78,7 +83,8 @@ def test_noise_pairs_step_fixes_config(upstream):
 
 def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_path):
     from go_pipeline.steps import repair
-    from go_pipeline.steps._common import final_model_path
+
+    from go_core import artifacts
 
     _, dirs, _ = upstream
     ctx = _lora(tmp_path, dirs, {})
@@ -87,12 +93,12 @@ def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_pat
     assert "Stable Diffusion 1.5" in info["reason"] and "GO_SD15_PATH" in info["reason"]
     assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["lora.json"]
     rctx = FakeCtx(tmp_path, "repair")
-    repair.run(rctx, {**dirs, "lora": ctx.out_dir}, REPAIR)
+    repair.run(rctx, {**dirs, "lora": ctx.out_dir}, step_params(repair.__name__, REPAIR))
     rinfo = json.loads((rctx.out_dir / "repair.json").read_text())
     assert rinfo["status"] == "skipped" and "Stable Diffusion 1.5" in rinfo["reason"]
     assert not (rctx.out_dir / "gaussians.npz").exists()
-    path, used = final_model_path({"coarse": dirs["coarse"], "repair": rctx.out_dir})
-    assert used == "coarse" and path == dirs["coarse"] / "gaussians.npz"
+    folder, used, _ = artifacts.final_model(dirs["coarse"], rctx.out_dir)
+    assert used == "coarse" and folder == dirs["coarse"]
 
 
 def test_configured_but_wrong_weights_raise_one_clear_error(upstream, tmp_path):
@@ -139,8 +145,8 @@ def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monke
 
 def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
     from go_pipeline.steps import repair
-    from go_pipeline.steps._common import final_model_path
 
+    from go_core import artifacts
     from go_core.diffusion.configs import SD15_SCHEDULER
     from go_core.repair.arcs import RepairArcs
     from go_core.scene.artifact import load_scene_artifact
@@ -148,12 +154,12 @@ def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
     _, dirs, weights = upstream
     lctx = _lora(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})
     ctx = FakeCtx(tmp_path, "repair")
-    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, REPAIR)
+    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, step_params(repair.__name__, REPAIR))
     info = json.loads((ctx.out_dir / "repair.json").read_text())
     assert info["status"] == "ok" and info["lora"] == "fine-tuned" and info["lpips_term"] == "off (weight 0)"
     assert info["refreshes"] == 2 and ctx.records["refreshes_made"] == 2
-    path, used = final_model_path({"coarse": dirs["coarse"], "repair": ctx.out_dir})
-    assert used == "repair" and path.is_file()
+    folder, used, _ = artifacts.final_model(dirs["coarse"], ctx.out_dir)
+    assert used == "repair" and artifacts.GAUSSIANS.path(folder).is_file()
 
     scene = load_scene_artifact(dirs["scene"])
     arcs = RepairArcs.from_cameras(scene.train_cameras, keep=0.8)
@@ -189,17 +195,23 @@ def test_ablations_no_finetune_and_no_repair(upstream, tmp_path):
     linfo = json.loads((lctx.out_dir / "lora.json").read_text())
     assert linfo["status"] == "pretrained" and not (lctx.out_dir / "lora.safetensors").exists()
     ctx = FakeCtx(tmp_path, "repair")
-    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, {**REPAIR, "iterations": 3, "repair_iterations": 2})
+    repair.run(
+        ctx,
+        {**dirs, "lora": lctx.out_dir},
+        step_params(repair.__name__, {**REPAIR, "iterations": 3, "repair_iterations": 2}),
+    )
     assert json.loads((ctx.out_dir / "repair.json").read_text())["lora"] == "pretrained (no fine-tuning)"
     ctx = FakeCtx(tmp_path, "repair_sds")
     repair.run(
         ctx,
         {**dirs, "lora": lctx.out_dir},
-        {**REPAIR, "iterations": 3, "repair_iterations": 2, "loss": "sds"},
+        step_params(repair.__name__, {**REPAIR, "iterations": 3, "repair_iterations": 2, "loss": "sds"}),
     )
     assert json.loads((ctx.out_dir / "repair.json").read_text())["loss"] == "sds"
     ctx = FakeCtx(tmp_path, "repair_none")
-    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, {**REPAIR, "mode": "no_repair"})
+    repair.run(
+        ctx, {**dirs, "lora": lctx.out_dir}, step_params(repair.__name__, {**REPAIR, "mode": "no_repair"})
+    )
     info = json.loads((ctx.out_dir / "repair.json").read_text())
     assert info["status"] == "skipped" and "no repair" in info["reason"]
     assert not (ctx.out_dir / "gaussians.npz").exists()

@@ -13,6 +13,7 @@ from test_scene_helpers import write_colmap_scene
 
 from go_core.scene import load_scene, load_scene_artifact, load_scene_cameras, save_scene_artifact
 from go_core.scene.artifact import read_scene_manifest
+from go_pipeline.pipeline import step_params
 
 SCHEMA = Path(__file__).resolve().parents[1] / "data_schema" / "scene_manifest.schema.json"
 
@@ -128,7 +129,11 @@ def test_scene_step_writes_the_artifact(shared_data, tmp_path, schema):
     from go_pipeline.steps import scene as step
 
     ctx = FakeContext(tmp_path / "out")
-    step.run(ctx, {"folder": shared_data / "dev" / "milk"}, {"views": 2, "max_size": 128})
+    step.run(
+        ctx,
+        {"folder": shared_data / "dev" / "milk"},
+        step_params(step.__name__, {"views": 2, "max_size": 128}),
+    )
     assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["scene.json", "views.npz"]
     manifest = json.loads((ctx.out_dir / "scene.json").read_text())
     schema.validate(manifest)

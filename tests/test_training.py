@@ -7,12 +7,10 @@ import pytest
 import torch
 
 from go_core.camera import look_at
-from go_core.densify import DensifyConfig
-from go_core.floaters import FloaterConfig
+from go_core.config import SettingError
 from go_core.gaussians import Gaussians
-from go_core.optim import LearningRates
 from go_core.render import render_gaussians
-from go_core.training import CheckpointSpec, CoarseConfig, NoDensify, TrainView, config_from_params, optimize
+from go_core.training import CheckpointSpec, CoarseConfig, NoDensify, TrainView, optimize
 
 BACKEND = "cpu"
 SIZE = 24
@@ -62,11 +60,19 @@ def _init(seed=1, n=30) -> Gaussians:
 def _tiny_config(iterations=40) -> CoarseConfig:
     return CoarseConfig(
         iterations=iterations,
-        lr=LearningRates(means_init=3e-3, means_final=3e-4, means_max_steps=iterations),
+        position_lr_init=3e-3,
+        position_lr_final=3e-4,
+        position_lr_max_steps=iterations,
         sh_increase_every=15,
         backend=BACKEND,
-        densify=DensifyConfig(start_iter=5, stop_iter=35, every=5, reset_every=20, grad_threshold=1e-5),
-        floaters=FloaterConfig(every=10, start_iter=10, stop_iter=30),
+        densify_from=5,
+        densify_until=35,
+        densify_every=5,
+        opacity_reset_every=20,
+        densify_grad_threshold=1e-5,
+        floater_every=10,
+        floater_from=10,
+        floater_until=30,
         log_every=5,
     )
 
@@ -93,7 +99,7 @@ def test_optimisation_fits_the_views_and_reports_counts():
     views = _views()
     init = _init()
     cfg = _tiny_config(100)
-    cfg.densify.reset_every = 0
+    cfg.opacity_reset_every = 0
     out, stats = optimize(init, views, cfg, generator=torch.Generator().manual_seed(0))
     assert _psnr(out, views) > _psnr(init, views) + 5.0
     assert out.sh_degree == 2 and stats.final_count == len(out)
@@ -162,22 +168,22 @@ def test_killed_run_resumes_bit_identically(tmp_path):
         assert all(np.array_equal(x[k], y[k]) for k in x.files)
 
 
-def test_config_from_flat_params():
-    cfg = config_from_params(
-        {
-            "iterations": 123,
-            "floaters": False,
-            "floater_schedule": "paper",
-            "max_gaussians": 5,
-            "feature_lr": 0.01,
-            "lambda_depth": 0,
-            "unknown": 1,
-        }
-    )
-    assert cfg.iterations == 123 and not cfg.floaters.enabled and cfg.floaters.schedule == "paper"
-    assert cfg.densify.max_gaussians == 5 and cfg.lr.shN == pytest.approx(0.0005) and cfg.lambda_depth == 0.0
-    with pytest.raises(ValueError):
-        config_from_params({"floater_schedule": "nope"})
+def test_config_from_flat_settings_is_checked():
+    cfg = CoarseConfig.from_dict(
+        {"iterations": 123, "floaters": False, "floater_schedule": "paper", "max_gaussians": 5,
+         "feature_lr": 0.01, "lambda_depth": 0}
+    )  # fmt: skip
+    assert cfg.iterations == 123 and not cfg.floaters and cfg.floater_schedule == "paper"
+    assert cfg.max_gaussians == 5 and cfg.feature_rest_lr == pytest.approx(0.0005) and cfg.lambda_depth == 0.0
+    assert isinstance(cfg.lambda_depth, float)
+    for bad, message in (
+        ({"floater_schedule": "nope"}, "floater_schedule: must be one of 'code' | 'paper'"),
+        ({"unknown": 1}, "unknown: unknown setting"),
+        ({"iterations": -5}, "iterations: must be >= 0, got -5"),
+        ({"iterations": 1.5}, "iterations: expected int, got float 1.5"),
+    ):
+        with pytest.raises(SettingError, match=message):
+            CoarseConfig.from_dict(bad)
 
 
 def test_depth_prior_term_enters_the_loss_with_gradients():

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from go_pipeline.pipeline import expand_env, load_pipeline
+from go_pipeline.pipeline import expand_env, load_pipeline, step_params
 from tests._tiny_repair import FakeCtx, run_weights_step, weights_artifact
 
 
@@ -31,13 +31,13 @@ def test_loo_and_noise_pairs_skip_without_reading_anything_else(tmp_path):
     # Only the weights artifact exists: a step that tried to read the scene or the models would fail.
     dirs = {"weights": weights_artifact(tmp_path / "w", status="missing")}
     ctx = FakeCtx(tmp_path, "loo")
-    loo.run(ctx, dirs, {})
+    loo.run(ctx, dirs, step_params(loo.__name__, {}))
     assert json.loads((ctx.out_dir / "loo.json").read_text())["status"] == "skipped"
     with np.load(ctx.out_dir / "loo_pairs.npz") as pairs:
         assert len(pairs.files) == 0
     assert ctx.records["status"] == "skipped" and "missing" in ctx.records["reason"]
     nctx = FakeCtx(tmp_path, "noise_pairs")
-    noise_pairs.run(nctx, {**dirs, "loo": ctx.out_dir}, {})
+    noise_pairs.run(nctx, {**dirs, "loo": ctx.out_dir}, step_params(noise_pairs.__name__, {}))
     assert json.loads((nctx.out_dir / "noise_pairs.json").read_text())["status"] == "skipped"
 
 

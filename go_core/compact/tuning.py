@@ -24,6 +24,7 @@ from go_core.compact.restorer import CompactRestorer
 from go_core.diffusion.frame import Frame
 from go_core.repair.data import hwc_to_bchw
 from go_core.repair.pairs import Pair
+from go_core.seeding import numpy_rng, torch_generator
 
 CKPT_FORMAT = "compact-tune-1"
 
@@ -116,8 +117,8 @@ def tune_compact(
     params = list(model.parameters())
     names = [n for n, _ in model.named_parameters()]
     opt = torch.optim.Adam(params, lr=settings.lr, betas=tuple(settings.betas))
-    gen = torch.Generator().manual_seed(int(seed) * 2 + 1)
-    rng = np.random.default_rng(int(seed))
+    gen = torch_generator(int(seed), "compact_noise")
+    rng = numpy_rng(int(seed), "compact_batches")
     losses: list[dict] = []
     counts = {"noise": 0, "loo": 0}
     start, running = 0, 0.0

@@ -14,7 +14,7 @@ and may execute in parallel processes.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,48 +23,8 @@ import torch
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write, atomic_write_json
 from go_core.repair.data import on_white, render_rgb_alpha, to_uint8
+from go_core.repair.settings import LooSettings
 from go_core.seeding import torch_generator
-
-
-@dataclass(frozen=True)
-class LooSettings:
-    phase1_iterations: int = 6000  # N−1 views, with densification (authors' code: until densify_until_iter)
-    phase2_iterations: int = 4000  # all N views, fixed set (authors' code: up to the 10k coarse iterations)
-    renders: int = 10  # renders of the left-out view kept as degraded images (spread over phase 2)
-    checkpoint_every: int = 500
-    sh_degree: int = 2
-    backend: str = "auto"
-    coarse_config: dict | None = None  # the coarse step's CoarseConfig (coarse.json "config"); None: defaults
-    compress_schedule: bool = False  # phase 1 shorter than coarse: its step schedules scaled to its length
-
-
-def compressed_config(base, iterations: int):
-    """``base`` (a CoarseConfig) run for ``iterations`` with every step-based schedule (densification window,
-    interval and opacity reset, floater window and interval, SH raise, position-lr decay) scaled by
-    iterations / base.iterations: a compressed coarse run (docs/coarse.md: with the hull, 1000 scaled
-    iterations reach the coarse model's test quality). Unchanged when ``iterations`` ≥ base.iterations."""
-    f = iterations / max(base.iterations, 1)
-    if f >= 1.0:
-        return replace(base, iterations=iterations)
-
-    def sc(v: int) -> int:
-        return max(1, round(v * f)) if v > 0 else v
-
-    d, fl, lr = base.densify, base.floaters, base.lr
-    return replace(
-        base,
-        iterations=iterations,
-        sh_increase_every=sc(base.sh_increase_every),
-        lr=replace(lr, means_max_steps=sc(lr.means_max_steps)),
-        densify=replace(
-            d,
-            start_iter=sc(d.start_iter),
-            stop_iter=sc(d.stop_iter),
-            every=sc(d.every),
-            reset_every=sc(d.reset_every),
-        ),
-        floaters=replace(fl, start_iter=sc(fl.start_iter), stop_iter=sc(fl.stop_iter), every=sc(fl.every)),
-    )
 
 
 @dataclass
@@ -102,8 +62,7 @@ def run_one(
 ) -> LooRun:
     """Run (or resume, or just load) the leave-one-out run for view ``index``. ``on_progress(step, info)``
     after each iteration, counting phase 1 then phase 2 (``optimize``'s info: loss, n, ...)."""
-    from go_core.floaters import FloaterConfig
-    from go_core.training import CheckpointSpec, CoarseConfig, NoDensify, optimize
+    from go_core.training import CheckpointSpec, NoDensify, optimize
 
     run_dir = Path(run_dir)
     done = run_dir / "done.json"
@@ -112,15 +71,7 @@ def run_one(
     left = views[index]
     others = [v for i, v in enumerate(views) if i != index]
     gen = torch_generator(int(seed), "loo", index)
-    base = CoarseConfig.from_dict(settings.coarse_config) if settings.coarse_config else CoarseConfig()
-    if settings.compress_schedule:
-        base = compressed_config(base, settings.phase1_iterations)
-    cfg1 = replace(
-        base,
-        iterations=settings.phase1_iterations,
-        sh_degree=settings.sh_degree,
-        backend=settings.backend if settings.backend != "auto" else base.backend,
-    )
+    cfg1 = settings.phase1_config()
     before_path = run_dir / "before.npz"
     info: dict = {"index": index, "name": left.camera.name}
     if before_path.is_file():
@@ -149,11 +100,12 @@ def run_one(
 
     def hook(step, g, out, view, i):
         if step in steps and not (rdir / f"step_{step:07d}.npy").is_file():
-            rgb, _ = render_rgb_alpha(g.detach(), left.camera, 1.0, settings.backend, settings.sh_degree)
+            sh = settings.coarse.sh_degree
+            rgb, _ = render_rgb_alpha(g.detach(), left.camera, 1.0, settings.backend, sh)
             _save_npy(rdir / f"step_{step:07d}.npy", to_uint8(rgb))
         return None
 
-    cfg2 = replace(cfg1, iterations=settings.phase2_iterations, floaters=FloaterConfig(enabled=False))
+    cfg2 = settings.phase2_config()
     if settings.phase2_iterations > 0:
         after, stats2 = optimize(
             before,
@@ -163,7 +115,7 @@ def run_one(
             extent=extent,
             strategy=NoDensify(),
             extra_loss=hook,
-            start_sh_degree=settings.sh_degree,
+            start_sh_degree=settings.coarse.sh_degree,
             checkpoint=CheckpointSpec(run_dir / "phase2", every=settings.checkpoint_every),
             on_progress=None
             if on_progress is None
@@ -175,7 +127,7 @@ def run_one(
     if len(after) != len(before):
         raise AssertionError("phase 2 must keep the Gaussian set fixed")
     final = settings.phase2_iterations + 1
-    rgb, _ = render_rgb_alpha(after, left.camera, 1.0, settings.backend, settings.sh_degree)
+    rgb, _ = render_rgb_alpha(after, left.camera, 1.0, settings.backend, settings.coarse.sh_degree)
     _save_npy(rdir / f"step_{final:07d}.npy", to_uint8(rgb))
     after.save(run_dir / "after.npz")
     clean = on_white(left.image, left.mask)
@@ -184,6 +136,16 @@ def run_one(
     info.update({"count": len(after), "settings": asdict(settings)})
     atomic_write_json(done, info)
     return load_run(run_dir)
+
+
+def run_is_done(run_dir: Path) -> bool:
+    """The run in ``run_dir`` finished (its last file is written)."""
+    return (Path(run_dir) / "done.json").is_file()
+
+
+def load_clean_and_mask(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The left-out photo on white and its mask, uint8, as the run saved them."""
+    return np.load(Path(run_dir) / "clean.npy"), np.load(Path(run_dir) / "mask.npy")
 
 
 def load_run(run_dir: Path) -> LooRun:
@@ -208,7 +170,7 @@ def run_job(job: dict) -> str:
         job["index"],
         job["views"],
         job["init"],
-        LooSettings(**job["settings"]),
+        job["settings"],
         job["seed"],
         Path(job["run_dir"]),
         job["extent"],

@@ -22,7 +22,7 @@ schedule are unchanged.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,40 +35,9 @@ from go_core.gaussians import Gaussians
 from go_core.repair.arcs import RepairArcs
 from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha
 from go_core.repair.loss import LpipsFn, repair_image_loss
+from go_core.repair.settings import RepairSettings
 from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_decay, neighbour_dmax
 from go_core.seeding import numpy_rng, torch_generator
-
-
-@dataclass(frozen=True)
-class RepairSettings:
-    iterations: int = 4000
-    repair_iterations: int = 2800  # reference + repaired views; reference only afterwards
-    loss: str = "lrep"  # "lrep" (paper) | "sds" (ablation: score distillation instead of repaired images)
-    refresh_every: int = 200
-    views_per_arc: int = 2
-    keep: float = 0.8  # middle fraction of each arc that is sampled
-    t_range: tuple[float, float] = (0.1, 1.0)  # SDEdit strength t/T (authors' code: 0.1 .. 1.0)
-    strength_range: tuple[float, float] = (0.5, 1.0)  # one-pass models: blend strength b (w = b)
-    num_inference_steps: int = 50
-    eta: float = 1.0
-    resolution: int = 512
-    lrep_start: float = 1.0
-    lrep_end: float = 0.1
-    l1: float = 1.0
-    l2: float = 1.0
-    lpips: float = 1.0
-    checkpoint_every: int = 200
-    backend: str = "auto"
-    means_lr: float = 1.6e-6  # constant position learning rate (authors' repair config)
-    densify: dict = field(
-        default_factory=lambda: {
-            "start_iter": 400,
-            "stop_iter": 3600,
-            "every": 100,
-            "reset_every": 500,
-            "min_opacity": 0.02,
-        }
-    )
 
 
 @dataclass
@@ -214,10 +183,7 @@ def repair_gaussians(
 
     The summary depends only on the inputs (identical after a resume); the run facts (resume point, refreshes
     computed in this process, L_rep log) describe this particular process."""
-    from go_core.densify import DensifyConfig
-    from go_core.floaters import FloaterConfig
-    from go_core.optim import LearningRates
-    from go_core.training import CheckpointSpec, CoarseConfig, optimize
+    from go_core.training import CheckpointSpec, optimize
 
     arcs = RepairArcs.from_cameras([v.camera for v in views], keep=settings.keep)
     sh = coarse.sh_degree
@@ -275,17 +241,7 @@ def repair_gaussians(
             )
         return (weight * lam * loss_sds).cpu()
 
-    config = CoarseConfig(
-        iterations=settings.iterations,
-        sh_degree=sh,
-        backend=settings.backend,
-        lr=LearningRates(
-            means_init=settings.means_lr, means_final=settings.means_lr, means_max_steps=settings.iterations
-        ),
-        densify=DensifyConfig(**settings.densify),
-        floaters=FloaterConfig(enabled=False),
-        lambda_depth=0.0,
-    )
+    config = settings.training_config(sh)
     gen = torch_generator(int(seed), "repair_training")
     ckpt = (
         None

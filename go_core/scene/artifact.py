@@ -35,14 +35,15 @@ from typing import Any
 
 import numpy as np
 
+from go_core import artifacts
 from go_core.camera import Camera
 from go_core.errors import SceneError
 from go_core.io.atomic import atomic_write_json
 from go_core.io.npz import write_npz_deterministic  # noqa: F401  (re-exported)
 from go_core.scene.types import Scene, View
 
-MANIFEST = "scene.json"
-ARRAYS = "views.npz"
+MANIFEST = artifacts.SCENE_INFO.file
+ARRAYS = artifacts.SCENE_VIEWS.file
 SCHEMA_ID = "go-pipeline/scene-manifest"
 SCHEMA_VERSION = 1
 

@@ -1,0 +1,91 @@
+"""Settings of the leave-one-out runs and of the Gaussian repair (torch-free, so they are checked at plan
+time). Both build on the coarse stage's ``CoarseConfig``, which they are given explicitly: the leave-one-out
+runs repeat the coarse training, the repair continues it with its own schedule."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Literal
+
+from go_core.config import setting
+from go_core.train_settings import Backend, CoarseConfig
+
+
+@dataclass
+class LooSettings:
+    phase1_iterations: int = setting(1000, ge=0, doc="N-1 views, densifying (paper/authors: 6000)")
+    phase2_iterations: int = setting(500, ge=0, doc="all N views on a fixed set (paper/authors: 4000)")
+    renders: int = setting(10, ge=1, doc="renders of the left-out view kept as degraded images (phase 2)")
+    checkpoint_every: int = setting(500, ge=0, doc="mid-run checkpoints (each finished run is kept too)")
+    compress_schedule: bool = setting(True, doc="phase 1 runs the coarse schedules scaled to its length")
+    backend: Backend = setting("auto", doc="auto: the coarse step's backend")
+    coarse: CoarseConfig = setting(default_factory=CoarseConfig, doc="the coarse step's settings")
+
+    def phase1_config(self) -> CoarseConfig:
+        """The coarse training on the N-1 other views."""
+        backend = self.backend if self.backend != "auto" else self.coarse.backend
+        coarse = self.coarse.scaled_schedule()  # the coarse step's schedules, as it ran them
+        if self.compress_schedule:
+            coarse = coarse.compressed(self.phase1_iterations)
+        return replace(coarse, iterations=self.phase1_iterations, schedule_iterations=0, backend=backend)
+
+    def phase2_config(self) -> CoarseConfig:
+        """Continued with all N views on a fixed set: no floater elimination (and no densification)."""
+        return replace(self.phase1_config(), iterations=self.phase2_iterations, floaters=False)
+
+
+@dataclass
+class RepairSettings:
+    iterations: int = setting(4000, ge=0)
+    repair_iterations: int = setting(2800, ge=0, doc="reference + repaired views; reference only afterwards")
+    loss: Literal["lrep", "sds"] = setting("lrep", doc="sds: score distillation instead of L_rep (ablation)")
+    refresh_every: int = setting(200, ge=1, doc="repaired images re-made from the current Gaussians")
+    views_per_arc: int = setting(2, ge=1, doc="repaired views per repair path per refresh")
+    keep: float = setting(0.8, gt=0, le=1, doc="middle fraction of each arc between reference views sampled")
+    t_range: tuple[float, float] = setting((0.1, 1.0), gt=0, le=1, doc="SDEdit strength t/T")
+    strength_range: tuple[float, float] = setting((0.5, 1.0), gt=0, le=1, doc="compact: blend b, w = b")
+    num_inference_steps: int = setting(50, ge=1)
+    eta: float = setting(1.0, ge=0, doc="DDIM stochasticity")
+    resolution: int = setting(512, ge=64, multiple_of=64)
+    lrep_start: float = setting(1.0, ge=0, doc="L_rep weight decays lrep_start -> lrep_end")
+    lrep_end: float = setting(0.1, ge=0)
+    l1: float = setting(1.0, ge=0)
+    l2: float = setting(1.0, ge=0)
+    lpips: float = setting(1.0, ge=0, doc="LPIPS term (off, and said so, without LPIPS weights)")
+    means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
+    densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
+    densify_until: int = setting(3600, ge=0)
+    densify_every: int = setting(100, ge=1)
+    opacity_reset_every: int = setting(500, ge=0)
+    min_opacity: float = setting(0.02, ge=0, lt=1)
+    checkpoint_every: int = setting(200, ge=0)
+    backend: Backend = "auto"
+    coarse: CoarseConfig = setting(default_factory=CoarseConfig, doc="the coarse step's settings")
+
+    def check(self) -> list[str]:
+        return [
+            f"{name} must be increasing, got {list(value)}"
+            for name, value in (("t_range", self.t_range), ("strength_range", self.strength_range))
+            if value[0] > value[1]
+        ]
+
+    def training_config(self, sh_degree: int) -> CoarseConfig:
+        """The coarse stage's loss and learning rates with the repair schedule: constant position rate,
+        the appendix densification, no floater elimination, no depth term."""
+        return replace(
+            self.coarse.scaled_schedule(),
+            iterations=self.iterations,
+            schedule_iterations=0,
+            sh_degree=sh_degree,
+            backend=self.backend,
+            position_lr_init=self.means_lr,
+            position_lr_final=self.means_lr,
+            position_lr_max_steps=self.iterations,
+            densify_from=self.densify_from,
+            densify_until=self.densify_until,
+            densify_every=self.densify_every,
+            opacity_reset_every=self.opacity_reset_every,
+            min_opacity=self.min_opacity,
+            floaters=False,
+            lambda_depth=0.0,
+        )

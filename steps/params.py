@@ -1,0 +1,180 @@
+"""One typed params class per step: the names, types, ranges and defaults of every setting in pipeline.yaml.
+
+The runner resolves pipeline.yaml, ``--profile`` and ``--set`` against these classes at plan time (an unknown
+name, a wrong type or a value out of range is one clear error before anything runs) and hands each step its
+instance: ``run(ctx, inputs, params: CoarseParams)``; steps read ``params.iterations``, never a default of
+their own. pipeline.yaml keeps the values users edit; tests/test_params.py holds the two in step.
+
+Adding a setting: a field here (``setting(default, ge=..., doc=...)``, ``Literal[...]`` for choices) and the
+same name and value in pipeline.yaml. A field whose type is another step's params class (``coarse:
+CoarseParams`` in ``LooParams``) is filled by the runner with that step's resolved params: a step that needs
+another step's settings receives them explicitly (and they are part of its cache key).
+
+Torch-free (the runner imports it for ``status``); the step modules import it only for type checking, so
+a change here reruns nothing by itself (a changed value changes the keys of the steps that use it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Literal
+
+from go_core.config import setting
+from go_core.repair.settings import LooSettings, RepairSettings
+from go_core.train_settings import Backend, CoarseConfig
+
+Precision = Literal["auto", "bf16", "fp16", "fp32"]
+
+
+@dataclass
+class SceneParams:
+    views: int = setting(0, ge=0, doc="0: the scene's own training split; N: choose N training views")
+    max_size: int = setting(0, ge=0, doc="downscale so the longest image side is at most this (0: keep)")
+
+
+@dataclass
+class MaskParams:
+    method: Literal["auto", "provided", "grabcut", "onnx"] = "auto"
+    onnx_model: str = setting("", doc="local path of an ISNet/U2-Net ONNX export")
+    onnx_normalization: Literal["imagenet", "isnet"] = "imagenet"
+    grabcut_iterations: int = setting(5, ge=1)
+    grabcut_border: float = setting(0.03, ge=0, lt=0.5, doc="image border fraction seeded as background")
+
+
+@dataclass
+class DepthParams:
+    model_path: str = setting("", doc="local transformers DPT / Depth-Anything folder; empty: no depth loss")
+
+
+@dataclass
+class HullParams:
+    init: Literal["hull", "random"] = "hull"
+    num_points: int = setting(20000, ge=1, doc="points sampled inside the hull (rejection sampling)")
+    random_points: int = setting(20000, ge=1, doc="points of the random-init ablation")
+    all_but_one: bool = setting(False, doc="keep points inside all masks but one (authors' code)")
+    mask_threshold: float = setting(0.5, gt=0, lt=1)
+    opacity: float = setting(0.1, gt=0, lt=1, doc="initial opacity of every Gaussian")
+
+
+@dataclass
+class CoarseParams(CoarseConfig):
+    """The coarse 3DGS settings (go_core.train_settings.CoarseConfig) and the step's checkpoint period."""
+
+    checkpoint_every: int = setting(500, ge=0, doc="0: no mid-step checkpoints")
+
+
+@dataclass
+class WeightsParams:
+    repair_model: Literal["auto", "sd15", "compact"] = setting(
+        "auto", doc="auto: sd15 when its weights are configured, else compact"
+    )
+    compact_model: str = setting("realesr-animevideov3-x4", doc="pretrained restorer (`weights fetch`)")
+    sd15_path: str = setting("${GO_SD15_PATH:-}", doc="SD1.5 diffusers folder or single file")
+    controlnet_path: str = setting("${GO_CONTROLNET_TILE_PATH:-}", doc="ControlNet tile folder or file")
+    clip_path: str = setting("${GO_CLIP_PATH:-}", doc="optional CLIP ViT-L/14 text encoder")
+    single_file_config: str = setting("${GO_SD15_CONFIG:-}", doc="diffusers config folder for single files")
+
+
+@dataclass
+class LooParams(LooSettings):
+    """The leave-one-out runs (go_core.repair.settings.LooSettings) with the coarse step's settings."""
+
+    workers: int = setting(1, ge=1, doc=">1: run the N independent runs in parallel processes")
+    coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
+
+
+@dataclass
+class NoisePairsParams:
+    p0: float = setting(1.0, ge=0, le=1, doc="initial probability of a fresh noise pair")
+    decay: float = setting(0.995, gt=0, le=1, doc="p_manual *= decay each time a noise pair is used")
+    noise_scale: float = setting(1.0, ge=0, doc="multiplies the leave-one-out statistics (1 = paper)")
+    preview_size: int = setting(128, ge=0, doc="thumbnail size of preview.png (0: no preview)")
+    backend: Backend = "auto"
+
+
+@dataclass
+class LoraParams:
+    finetune: bool = setting(True, doc="false: no fine-tuning ablation (pretrained ControlNet only)")
+    prompt: str = "a photo of xxy5syt00"
+    rank: int = setting(64, ge=1, doc="LoRA rank on UNet + ControlNet transformer blocks and CLIP attention")
+    alpha: float = setting(64.0, gt=0)
+    unet: bool = True
+    controlnet: bool = True
+    text_encoder: bool = True
+    steps: int = setting(1800, ge=0)
+    lr: float = setting(0.001, gt=0, doc="AdamW")
+    betas: tuple[float, float] = setting((0.9, 0.999), ge=0, lt=1)
+    weight_decay: float = setting(0.01, ge=0)
+    resolution: int = setting(512, ge=64, multiple_of=64, doc="square side fed to SD")
+    checkpoint_every: int = setting(300, ge=0)
+    use_loo_pairs: bool = setting(True, doc="false: noise pairs only")
+    precision: Precision = setting("auto", doc="CUDA: auto/bf16 | fp16 | fp32; CPU is always fp32")
+    compact_steps: int = setting(400, ge=0, doc="compact repair model: full fine-tune steps (L1, Adam)")
+    compact_lr: float = setting(0.0001, gt=0, doc="compact: Adam learning rate")
+    compact_resolution: int = setting(256, ge=1, doc="compact: pair side (a multiple of the model's scale)")
+    backend: Backend = "auto"
+
+
+@dataclass
+class RepairParams(RepairSettings):
+    """Gaussian repair (go_core.repair.settings.RepairSettings), its ablations and the coarse settings."""
+
+    mode: Literal["full", "no_repair"] = setting("full", doc="no_repair: the coarse model is the result")
+    use_lora: bool = setting(True, doc="false: no fine-tuning ablation with the pretrained ControlNet")
+    guidance_scale: float = setting(1.0, ge=0)
+    lpips_net: Literal["vgg", "alex"] = "vgg"
+    precision: Precision = "auto"
+    compact_resolution: int = setting(256, ge=1, doc="compact model: side of the repaired views")
+    coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
+
+
+@dataclass
+class ExportParams:
+    sh_degree: int = setting(3, ge=0, le=3, doc="SH degree written (f_rest zero-padded; 3: viewers)")
+
+
+@dataclass
+class TurntableParams:
+    frames: int = setting(60, ge=1, doc="frames on the ellipse fitted to the TRAINING cameras")
+    path_frames: int = setting(15, ge=1, doc="camera_path.mp4: frames between consecutive training cameras")
+    fps: int = setting(20, ge=1)
+    max_size: int = setting(256, ge=0, doc="longest image side of the frames (0: training resolution)")
+    sheet_frames: int = setting(8, ge=1, doc="frames on the contact sheet")
+    background: tuple[float, float, float] = setting((1.0, 1.0, 1.0), ge=0, le=1)
+    backend: Backend = "auto"
+
+
+@dataclass
+class EvalParams:
+    lpips_nets: list[Literal["vgg", "alex"]] = setting(["vgg", "alex"], doc="vgg = the paper's LPIPS")
+    masked: bool = setting(False, doc="also report PSNR/SSIM/LPIPS over the GT mask only")
+    backend: Backend = "auto"
+    grid_views: int = setting(8, ge=0, doc="test views shown in test_grid.png")
+    thumb_size: int = setting(128, ge=1, doc="longest side of each grid thumbnail, px")
+
+
+# The params class of each step module (pipeline.yaml's `function: <module>:run`).
+PARAMS_CLASSES: dict[str, type] = {
+    "go_pipeline.steps.scene": SceneParams,
+    "go_pipeline.steps.mask": MaskParams,
+    "go_pipeline.steps.depth": DepthParams,
+    "go_pipeline.steps.hull": HullParams,
+    "go_pipeline.steps.coarse": CoarseParams,
+    "go_pipeline.steps.weights": WeightsParams,
+    "go_pipeline.steps.loo": LooParams,
+    "go_pipeline.steps.noise_pairs": NoisePairsParams,
+    "go_pipeline.steps.lora": LoraParams,
+    "go_pipeline.steps.repair": RepairParams,
+    "go_pipeline.steps.export": ExportParams,
+    "go_pipeline.steps.turntable": TurntableParams,
+    "go_pipeline.steps.eval": EvalParams,
+}
+
+
+def upstream_fields(cls: type) -> dict[str, type]:
+    """Fields filled with another step's params: {field name: that step's params class}."""
+    from go_core.config import field_types
+
+    params_classes = set(PARAMS_CLASSES.values())
+    types = field_types(cls)
+    return {f.name: types[f.name] for f in fields(cls) if types[f.name] in params_classes}
