@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from go_core.hull import points_to_gaussians, random_init, visual_hull
+from go_core.io.images import composite
 from go_core.losses import ssim
 from go_core.render import render_camera
 from go_core.scene.loader import load_scene
@@ -105,7 +106,7 @@ def evaluate(g, scene) -> dict:
             cam = v.camera
             out = render_camera(g, cam, background=white)
             pred = out.rgb[0].clamp(0, 1)
-            gt = torch.from_numpy(scene.composite(v, 1.0).astype(np.float32))
+            gt = torch.from_numpy(composite(v.image, v.mask, 1.0))
             ps.append(psnr(pred.numpy(), gt.numpy()))
             ss.append(float(ssim(pred, gt)))
             if lpips is not None:

@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     extra: list[str] = []
     if args.toy:
         sys.path.insert(0, str(REPO / "tests"))
-        from test_runner_toy import make_toy_project
+        from _runner_toy import make_toy_project
 
         toy = make_toy_project(work)
         env = toy.env()

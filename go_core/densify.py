@@ -18,23 +18,10 @@ from abc import ABC, abstractmethod
 import torch
 
 from go_core.optim import GaussianOptimizer
+from go_core.render.projection import quat_to_rotmat
 from go_core.train_settings import DensifyConfig
 
 __all__ = ["DensifyConfig", "DensifyStrategy", "NoDensify", "Strategy", "quat_to_rotmat"]
-
-
-def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices [N,3,3] from w-first (possibly unnormalised) quaternions [N,4]."""
-    q = torch.nn.functional.normalize(q, dim=-1)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(-1, 3, 3)  # fmt: skip
 
 
 class Strategy(ABC):

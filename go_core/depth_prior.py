@@ -15,6 +15,7 @@ import torch
 
 from go_core import artifacts
 from go_core.errors import MissingWeightsError
+from go_core.io.images import to_uint8
 
 
 @dataclass
@@ -46,7 +47,7 @@ class DepthEstimator:
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """Disparity [H,W] float32 for an RGB float image [H,W,3] in [0,1] (resized back bicubically)."""
         h, w = image.shape[:2]
-        u8 = np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        u8 = to_uint8(image)
         inputs = self.processor(images=u8, return_tensors="pt")
         inputs = {k: v.to(self.device) for k, v in inputs.items()}
         pred = self.model(**inputs).predicted_depth  # [1,h',w']

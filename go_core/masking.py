@@ -19,6 +19,7 @@ import numpy as np
 
 from go_core import artifacts
 from go_core.errors import MissingWeightsError, SceneError
+from go_core.io.images import to_uint8
 
 NORMALISATIONS = {
     "imagenet": ((0.485, 0.456, 0.406), (0.229, 0.224, 0.225)),  # U²-Net
@@ -46,7 +47,7 @@ def validate_mask(
 def grabcut_mask(image: np.ndarray, iterations: int = 5, border: float = 0.03) -> np.ndarray:
     """GrabCut foreground [H,W] float32 in {0,1}; the outer ``border`` fraction (≥ 1 px) is background."""
     h, w = image.shape[:2]
-    bgr = cv2.cvtColor(np.clip(image * 255.0 + 0.5, 0, 255).astype(np.uint8), cv2.COLOR_RGB2BGR)
+    bgr = cv2.cvtColor(to_uint8(image), cv2.COLOR_RGB2BGR)
     bx, by = max(1, round(border * w)), max(1, round(border * h))
     rect = (bx, by, w - 2 * bx, h - 2 * by)
     mask = np.zeros((h, w), np.uint8)

@@ -25,6 +25,7 @@ import numpy as np
 
 from go_core.camera import Camera
 from go_core.errors import EmptyHullError, GoError
+from go_core.io.images import to_uint8
 from go_core.pose_verify import optical_axis_angles
 
 WIDE_BASELINE_DEG = 60.0  # disagreeing pairs wider than this are no evidence (mostly repeated texture)
@@ -83,7 +84,7 @@ def _write_inputs(views, root: Path, dilate_px: int, use_masks: bool = True) -> 
     names, have_masks = [], use_masks and all(v.mask is not None for v in views)
     for i, v in enumerate(views):
         name = f"{i:04d}.png"
-        rgb = (np.clip(v.image, 0, 1) * 255 + 0.5).astype(np.uint8)
+        rgb = to_uint8(v.image)
         cv2.imwrite(str(img_dir / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         if have_masks:
             m = (np.asarray(v.mask) > 0.5).astype(np.uint8) * 255

@@ -20,7 +20,8 @@ import numpy as np
 
 from go_core import artifacts as art
 from go_core.io.atomic import atomic_write
-from go_core.metrics.evaluate import MetricSuite, composite, error_map, mean_metrics
+from go_core.io.images import composite, thumbnail
+from go_core.metrics.evaluate import MetricSuite, error_map, mean_metrics
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import EvalParams
@@ -64,15 +65,6 @@ def render_views(gaussians, cameras, device: str = "cpu", backend: str = "auto")
     return out
 
 
-def _thumb(img: np.ndarray, size: int) -> np.ndarray:
-    from PIL import Image
-
-    h, w = img.shape[:2]
-    f = min(1.0, size / max(h, w))
-    im = Image.fromarray(img if img.dtype == np.uint8 else (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8))
-    return np.asarray(im.resize((max(1, round(w * f)), max(1, round(h * f))), Image.BILINEAR))
-
-
 def grid_image(
     gts: list[np.ndarray], renders: list[np.ndarray], max_views: int, thumb_size: int
 ) -> np.ndarray:
@@ -82,9 +74,9 @@ def grid_image(
     cols = []
     for i in idx:
         rows = [
-            _thumb(gts[i], thumb_size),
-            _thumb(renders[i], thumb_size),
-            _thumb(error_map(renders[i], gts[i]), thumb_size),
+            thumbnail(gts[i], thumb_size),
+            thumbnail(renders[i], thumb_size),
+            thumbnail(error_map(renders[i], gts[i]), thumb_size),
         ]
         cols.append(np.concatenate(rows, axis=0))
     if not cols:

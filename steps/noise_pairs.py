@@ -17,6 +17,7 @@ from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 from go_core import artifacts as art
 from go_core.io.atomic import atomic_write
+from go_core.io.images import thumbnail
 from go_core.repair.data import on_white, render_rgb_alpha, to_uint8, training_views
 from go_core.repair.noise import NoiseStats
 from go_core.repair.pairs import noise_pair
@@ -26,16 +27,6 @@ SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, 
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import NoisePairsParams
-
-
-def _thumb(img: np.ndarray, size: int) -> np.ndarray:
-    from PIL import Image
-
-    h, w = img.shape[:2]
-    f = min(1.0, size / max(h, w))
-    return np.asarray(
-        Image.fromarray(img).resize((max(1, round(w * f)), max(1, round(h * f))), Image.BILINEAR)
-    )
 
 
 def run(ctx, inputs: dict[str, Path], params: NoisePairsParams) -> None:
@@ -66,7 +57,7 @@ def run(ctx, inputs: dict[str, Path], params: NoisePairsParams) -> None:
             pair = noise_pair(coarse, stats, v, k, gen, backend, scale)
             plain, _ = render_rgb_alpha(coarse, v.camera, 1.0, backend)
             imgs = [to_uint8(on_white(v.image, v.mask)), to_uint8(plain), to_uint8(pair.degraded)]
-            row = np.concatenate([_thumb(i, size) for i in imgs], axis=1)
+            row = np.concatenate([thumbnail(i, size) for i in imgs], axis=1)
             rows.append(row)
         width = max(r.shape[1] for r in rows)
         rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=255) for r in rows]

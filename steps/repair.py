@@ -72,15 +72,11 @@ def _preview(path: Path, cache, size: int = 128) -> None:
     import numpy as np
     from PIL import Image
 
-    from go_core.repair.data import to_uint8
+    from go_core.io.images import thumbnail
 
-    def thumb(img):
-        a = to_uint8(img)
-        h, w = a.shape[:2]
-        f = min(1.0, size / max(h, w))
-        return np.asarray(Image.fromarray(a).resize((max(1, round(w * f)), max(1, round(h * f)))))
-
-    rows = [np.concatenate([thumb(v.render), thumb(v.image)], axis=1) for v in cache.views]
+    rows = [
+        np.concatenate([thumbnail(v.render, size), thumbnail(v.image, size)], axis=1) for v in cache.views
+    ]
     if not rows:
         return
     width = max(r.shape[1] for r in rows)

@@ -15,6 +15,7 @@ from go_pipeline.steps._common import final_model
 from go_core import artifacts as art
 from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write
+from go_core.io.images import to_uint8
 from go_core.render import render_camera
 from go_core.scene.artifact import load_scene_cameras
 from go_core.trajectory import camera_path_cameras, contact_sheet, turntable_cameras
@@ -31,7 +32,7 @@ def render_frames(
     with torch.no_grad():
         for cam in cams:
             out = render_camera(g, cam, background=bg, backend=backend)
-            frames.append((out.rgb[0].clamp(0, 1).numpy() * 255.0 + 0.5).astype(np.uint8))
+            frames.append(to_uint8(out.rgb[0]))
             bar.advance()
     bar.close()
     return frames

@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
-from test_scene_helpers import disk_rgba, edit_json, write_colmap_scene, write_nerf_scene
+from _scene_helpers import disk_rgba, edit_json, write_colmap_scene, write_nerf_scene
 
 from go_core.errors import GoError, SceneError
 from go_core.io.images import write_png
@@ -211,7 +211,7 @@ def test_unknown_camera_model_text(colmap):
 
 
 def test_unsupported_camera_model_binary(tmp_path):
-    from test_scene_helpers import ring_cameras, write_colmap_model
+    from _scene_helpers import ring_cameras, write_colmap_model
 
     root = write_colmap_scene(tmp_path / "fe", n=3, text=False)
     shutil.rmtree(root / "sparse")

@@ -7,7 +7,7 @@ import json
 import os
 
 import pytest
-from test_eval_toy import make_eval_toy
+from _eval_toy import make_eval_toy
 
 from go_pipeline.reporting.batch import find_scenes, run_batch, write_results
 from go_pipeline.reporting.run_report import validate_report

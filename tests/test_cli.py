@@ -7,7 +7,7 @@ import shutil
 import sys
 
 import pytest
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 from go_pipeline.lock import WorkdirLock
 from go_pipeline.resources import example_scene_path

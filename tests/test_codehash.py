@@ -9,7 +9,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 from go_pipeline import codehash
 from go_pipeline.runner import pipeline_status, run_pipeline

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 import torch
+from _eval_toy import make_eval_toy
 from PIL import Image
-from test_eval_toy import make_eval_toy
 
 from go_core.metrics.lpips_weights import weights_path
 from go_core.metrics.psnr import psnr

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 from go_pipeline.openmp import SPIN_COUNT, set_default_wait
 from go_pipeline.runner import run_pipeline

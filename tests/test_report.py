@@ -6,8 +6,8 @@ import json
 
 import jsonschema
 import pytest
+from _eval_toy import make_eval_toy
 from PIL import Image
-from test_eval_toy import make_eval_toy
 
 from go_pipeline.reporting.render import write_html, write_markdown
 from go_pipeline.reporting.run_report import build_report, validate_report

@@ -9,7 +9,7 @@ import subprocess
 import sys
 
 import pytest
-from test_runner_toy import content_hashes, make_toy_project
+from _runner_toy import content_hashes, make_toy_project
 
 from go_core.errors import GoError, SceneError
 from go_pipeline import store

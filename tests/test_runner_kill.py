@@ -11,7 +11,7 @@ import sys
 import time
 
 import pytest
-from test_runner_toy import content_hashes, make_toy_project
+from _runner_toy import content_hashes, make_toy_project
 
 from go_pipeline import store
 

@@ -4,7 +4,7 @@ the compiler of a one-time rasterizer build), and not the one-time build itself 
 from __future__ import annotations
 
 import pytest
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 from go_pipeline import store
 from go_pipeline.runner import run_pipeline

@@ -9,7 +9,7 @@ from pathlib import Path
 import jsonschema
 import numpy as np
 import pytest
-from test_scene_helpers import write_colmap_scene
+from _scene_helpers import write_colmap_scene
 
 from go_core.scene import load_scene, load_scene_artifact, load_scene_cameras, save_scene_artifact
 from go_core.scene.artifact import read_scene_manifest

@@ -7,7 +7,7 @@ import shutil
 
 import numpy as np
 import pytest
-from test_scene_helpers import ring_cameras, write_colmap_model, write_colmap_scene, write_nerf_scene
+from _scene_helpers import ring_cameras, write_colmap_model, write_colmap_scene, write_nerf_scene
 
 from go_core.camera import Camera
 from go_core.io.images import read_image, write_png

@@ -137,12 +137,38 @@ def read_mask(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(np.clip(m, 0.0, 1.0).astype(np.float32))
 
 
-def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Float [0, 1] → uint8 with rounding (clipped); uint8 passes through."""
-    a = np.asarray(image)
+def to_uint8(image) -> np.ndarray:
+    """Float [0, 1] (numpy or torch) → uint8, the one rounding rule of go-pipeline: round half up,
+    ``floor(clip(x, 0, 1) · 255 + 0.5)``, in the input's float precision. uint8 passes through."""
+    a = image.detach().cpu().numpy() if hasattr(image, "detach") else np.asarray(image)
     if a.dtype == np.uint8:
         return a
-    return np.round(np.clip(a.astype(np.float32), 0.0, 1.0) * 255.0).astype(np.uint8)
+    if not np.issubdtype(a.dtype, np.floating):
+        a = a.astype(np.float32)
+    return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def composite(image, mask, background: float = 1.0):
+    """RGB [H,W,3] over a constant background (white by default: the paper's protocol) with its
+    fractional mask [H,W]: ``image·m + background·(1 − m)``; unchanged without a mask. numpy arrays come back
+    as float32, torch tensors stay tensors."""
+    if mask is None:
+        return image if hasattr(image, "detach") else np.asarray(image, np.float32)
+    if hasattr(image, "detach"):
+        m = mask[..., None]
+        return image * m + background * (1.0 - m)
+    a = np.asarray(mask, np.float32)[..., None]
+    return (np.asarray(image, np.float32) * a + np.float32(background) * (1.0 - a)).astype(np.float32)
+
+
+def thumbnail(image, size: int) -> np.ndarray:
+    """uint8 [h,w,3] no larger than ``size`` on its longest side (bilinear; never enlarged)."""
+    from PIL import Image
+
+    a = to_uint8(image)
+    h, w = a.shape[:2]
+    f = min(1.0, size / max(h, w))
+    return np.asarray(Image.fromarray(a).resize((max(1, round(w * f)), max(1, round(h * f))), Image.BILINEAR))
 
 
 def write_png(path: str | Path, image: np.ndarray) -> Path:

@@ -21,21 +21,15 @@ import numpy as np
 import torch
 
 from go_core.errors import MissingWeightsError
+from go_core.io.images import composite, to_uint8
 from go_core.metrics.lpips import LPIPS
 from go_core.metrics.psnr import psnr
 from go_core.metrics.ssim import reduce_ssim_map, ssim_metric_map
 
 LPIPS_NETS = ("vgg", "alex")
 LPIPS_MIN_SIZE = {"alex": 32, "vgg": 16}  # smaller images vanish in the backbone's pooling: no value
+__all__ = ["MetricSuite", "composite", "error_map", "mean_metrics"]
 METRIC_KEYS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "lpips_star")
-
-
-def composite(image: np.ndarray, mask: np.ndarray | None, background: float = 1.0) -> np.ndarray:
-    """RGB [H,W,3] over a constant background with the (fractional) mask [H,W]; unchanged without mask."""
-    if mask is None:
-        return np.asarray(image, np.float32)
-    a = np.asarray(mask, np.float32)[..., None]
-    return (np.asarray(image, np.float32) * a + np.float32(background) * (1.0 - a)).astype(np.float32)
 
 
 @dataclass
@@ -128,4 +122,4 @@ def error_map(pred: np.ndarray, gt: np.ndarray, vmax: float = 0.5) -> np.ndarray
 
     err = np.abs(np.asarray(pred, np.float32) - np.asarray(gt, np.float32)).mean(-1)
     rgba = colormaps["magma"](np.clip(err / vmax, 0.0, 1.0))
-    return (rgba[..., :3] * 255 + 0.5).astype(np.uint8)
+    return to_uint8(rgba[..., :3])

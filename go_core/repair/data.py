@@ -15,6 +15,7 @@ import torch
 from go_core.camera import Camera
 from go_core.errors import SceneError
 from go_core.gaussians import Gaussians
+from go_core.io.images import composite, to_uint8  # noqa: F401  (to_uint8 re-exported)
 
 
 def training_views(scene_dir: str | Path, mask_dir: str | Path | None = None):
@@ -38,10 +39,7 @@ def training_views(scene_dir: str | Path, mask_dir: str | Path | None = None):
 
 def on_white(image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
     """[H, W, 3] composited over white with its mask."""
-    if mask is None:
-        return image
-    m = mask[..., None]
-    return image * m + (1.0 - m)
+    return composite(image, mask, 1.0)
 
 
 @torch.no_grad()
@@ -60,11 +58,6 @@ def render_differentiable(
     kw = {} if sh_degree is None else {"sh_degree": sh_degree}
     out = render_camera(g, cam, background=torch.full((3,), float(background)), backend=backend, **kw)
     return out.rgb[0].clamp(0.0, 1.0), out.alpha[0, ..., 0]
-
-
-def to_uint8(img: torch.Tensor | np.ndarray) -> np.ndarray:
-    a = img.detach().cpu().numpy() if isinstance(img, torch.Tensor) else np.asarray(img)
-    return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 
 def from_uint8(a: np.ndarray) -> torch.Tensor:

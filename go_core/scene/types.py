@@ -43,10 +43,3 @@ class Scene:
     @property
     def test_cameras(self) -> list[Camera]:
         return [v.camera for v in self.test]
-
-    def composite(self, view: View, background: np.ndarray | float = 1.0) -> np.ndarray:
-        """The view's RGB composited over ``background`` with its mask (paper protocol: white)."""
-        if view.mask is None:
-            return view.image
-        a = view.mask[..., None]
-        return view.image * a + np.asarray(background, np.float32) * (1.0 - a)
