@@ -584,6 +584,17 @@ def pipeline_status(
     return rows
 
 
+def _flat(params: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested params (another step's params given to this one) as dotted names: coarse.lambda_mask."""
+    flat: dict[str, Any] = {}
+    for k, v in params.items():
+        if isinstance(v, dict):
+            flat.update(_flat(v, f"{prefix}{k}."))
+        else:
+            flat[f"{prefix}{k}"] = v
+    return flat
+
+
 def _what_changed(
     plan: _Plan, name: str, previous: dict[str, Any], inputs: dict[str, dict[str, Any]] | None
 ) -> list[str]:
@@ -594,7 +605,7 @@ def _what_changed(
     if changed:
         more = f" (+{len(changed) - 3} more)" if len(changed) > 3 else ""
         reasons.append(f"code changed: {', '.join(changed[:3])}{more}")
-    old_params, new_params = previous.get("params") or {}, plan.params[name]
+    old_params, new_params = _flat(previous.get("params") or {}), _flat(plan.params[name])
     for p in sorted(set(old_params) | set(new_params)):
         if old_params.get(p, "<unset>") != new_params.get(p, "<unset>"):
             reasons.append(

@@ -177,3 +177,13 @@ def test_cli_rejects_an_out_of_range_set_before_anything_runs(tmp_path):
     assert len(lines) == 1, out.stderr
     assert lines[0].endswith("--set coarse.iterations=-5: must be >= 0, got -5"), out.stderr
     assert not (scene / ".go").exists()
+
+
+def test_status_names_the_upstream_setting_that_changed(tmp_path):
+    from go_pipeline.runner import _flat
+
+    assert _flat({"renders": 3, "coarse": {"lambda_mask": 0.5, "iterations": 2}}) == {
+        "renders": 3,
+        "coarse.lambda_mask": 0.5,
+        "coarse.iterations": 2,
+    }
