@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 
 @pytest.fixture()

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 REPO = Path(__file__).resolve().parents[1]
 

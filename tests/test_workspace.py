@@ -7,7 +7,7 @@ import json
 
 import pytest
 import yaml
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 from go_pipeline import outputs, store
 from go_pipeline.pipeline import load_pipeline
