@@ -66,6 +66,11 @@ def _settings_for(args: argparse.Namespace, workdir: Path | None):
     return settings_from(args, workdir)[1]
 
 
+def _own(pipeline, step: str, params: dict[str, dict[str, Any]]) -> list[str]:
+    """A step's own params (not another step's params given to it: those are listed under that step)."""
+    return [n for n in params[step] if n not in pipeline.steps[step].upstream_params]
+
+
 def _show(v: Any) -> str:
     return json.dumps(v) if not isinstance(v, str) else repr(v)
 
@@ -93,7 +98,7 @@ def main(args: argparse.Namespace) -> int:
 
         other, _ = current_params(pipeline, other_wd, load_settings(other_wd) or Settings())
         for step in pipeline.steps:
-            for name in defaults[step]:
+            for name in _own(pipeline, step, defaults):
                 a, b = current[step].get(name), other[step].get(name)
                 if a != b:
                     rows.append({"param": f"{step}.{name}", "this": a, "other": b})
@@ -108,7 +113,8 @@ def main(args: argparse.Namespace) -> int:
         )
         return 0
     for step in pipeline.steps:
-        for name, default in defaults[step].items():
+        for name in _own(pipeline, step, defaults):
+            default = defaults[step][name]
             value = current[step].get(name, default)
             if args.changed and value == default:
                 continue
