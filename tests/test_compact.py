@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from go_pipeline.pipeline import step_params
 from tests._tiny_repair import FakeCtx, one_thread, run_weights_step, synthetic_inputs, tiny_compact
 
 EXAMPLE_IMAGE = Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket" / "train"
@@ -48,10 +49,10 @@ def upstream(tmp_path_factory):
     with one_thread():
         dirs = synthetic_inputs(root)
         ctx = FakeCtx(root, "loo")
-        loo.run(ctx, dirs, LOO)
+        loo.run(ctx, dirs, step_params(loo.__name__, LOO))
         dirs["loo"] = ctx.out_dir
         ctx = FakeCtx(root, "noise_pairs")
-        noise_pairs.run(ctx, dirs, {"preview_size": 0})
+        noise_pairs.run(ctx, dirs, step_params(noise_pairs.__name__, {"preview_size": 0}))
         dirs["noise_pairs"] = ctx.out_dir
     return root, dirs
 
@@ -61,7 +62,7 @@ def _lora(root: Path, dirs: dict, params: dict) -> FakeCtx:
 
     weights = run_weights_step(root / "weights", COMPACT)
     ctx = FakeCtx(root, "lora")
-    lora.run(ctx, {**dirs, "weights": weights}, params)
+    lora.run(ctx, {**dirs, "weights": weights}, step_params(lora.__name__, params))
     return ctx
 
 
@@ -69,7 +70,7 @@ def _repair(root: Path, dirs: dict, lora_dir: Path, params: dict) -> FakeCtx:
     from go_pipeline.steps import repair
 
     ctx = FakeCtx(root, "repair")
-    repair.run(ctx, {**dirs, "lora": lora_dir}, params)
+    repair.run(ctx, {**dirs, "lora": lora_dir}, step_params(repair.__name__, params))
     return ctx
 
 
@@ -155,7 +156,7 @@ def test_bad_compact_weights_are_one_error_naming_file_and_fetch(tmp_path, monke
         path.write_bytes(data[:8] + b"{garbage" + data[16:])
     ctx = FakeCtx(tmp_path, "weights")
     with pytest.raises(MissingWeightsError) as err:
-        weights.run(ctx, {}, {"repair_model": "compact"})
+        weights.run(ctx, {}, step_params(weights.__name__, {"repair_model": "compact"}))
     msg = str(err.value)
     assert str(compact_path("realesr-animevideov3-x4", root)) in msg and "go-pipeline weights fetch" in msg
     assert "\n" not in msg
