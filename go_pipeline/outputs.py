@@ -19,17 +19,18 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from go_core import artifacts as art
 from go_pipeline import store
 
 OUTPUTS_DIR = "outputs"
 INDEX = "index.json"
 # stable name -> (step, file in the step's artifact); optional ones are published when the step wrote them
 COPIED = {
-    "model.ply": ("export", "point_cloud.ply"),
-    "turntable.gif": ("turntable", "turntable.gif"),
+    "model.ply": ("export", art.POINT_CLOUD.file),
+    "turntable.gif": ("turntable", art.TURNTABLE.file),
     "turntable.mp4": ("turntable", "turntable.mp4"),
-    "camera_path.mp4": ("turntable", "camera_path.mp4"),
-    "metrics.json": ("eval", "metrics.json"),
+    "camera_path.mp4": ("turntable", art.CAMERA_PATH_VIDEO.file),
+    "metrics.json": ("eval", art.METRICS.file),
 }
 
 

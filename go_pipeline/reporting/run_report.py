@@ -12,6 +12,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from go_core import artifacts as art
 from go_pipeline import store
 
 REPORT_SCHEMA_ID = "go-pipeline/run-report"
@@ -118,22 +119,22 @@ def build_report(
         )
     metrics = None
     metrics_dir = store.artifact_dir(wd, "eval") if "eval" in manifests else None
-    if metrics_dir is not None and (metrics_dir / "metrics.json").is_file():
-        metrics = json.loads((metrics_dir / "metrics.json").read_text())
+    if metrics_dir is not None and art.METRICS.path(metrics_dir).is_file():
+        metrics = art.read_json(metrics_dir, art.METRICS)
     devices = sorted({s["device"] for s in steps if s["device"]})
     libraries: dict[str, str] = {}
     for name in (s["name"] for s in steps):
         libraries.update(manifests[name].get("libraries", {}))
     images = {}
-    if metrics_dir is not None and (metrics_dir / "test_grid.png").is_file():
-        images["test_grid"] = str(metrics_dir / "test_grid.png")
+    if metrics_dir is not None and art.TEST_GRID.path(metrics_dir).is_file():
+        images["test_grid"] = str(art.TEST_GRID.path(metrics_dir))
     files = {}
     for label, step, name in (
-        ("turntable", "turntable", "turntable.gif"),
-        ("camera_path", "turntable", "camera_path.mp4"),
-        ("curves_coarse", "coarse", "curves.csv"),
-        ("curves_repair", "repair", "curves.csv"),
-        ("model_ply", "export", "point_cloud.ply"),
+        ("turntable", "turntable", art.TURNTABLE.file),
+        ("camera_path", "turntable", art.CAMERA_PATH_VIDEO.file),
+        ("curves_coarse", "coarse", art.CURVES.file),
+        ("curves_repair", "repair", art.CURVES.file),
+        ("model_ply", "export", art.POINT_CLOUD.file),
     ):
         found = store.artifact_dir(wd, step) if step in manifests else None
         if found is not None and (found / name).is_file():
