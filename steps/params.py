@@ -149,7 +149,7 @@ class EvalParams:
     lpips_nets: list[Literal["vgg", "alex"]] = setting(["vgg", "alex"], doc="vgg = the paper's LPIPS")
     masked: bool = setting(False, doc="also report PSNR/SSIM/LPIPS over the GT mask only")
     backend: Backend = "auto"
-    grid_views: int = setting(8, ge=0, doc="test views shown in test_grid.png")
+    grid_views: int = setting(100, ge=0, doc="test views shown in test_grid.png")
     thumb_size: int = setting(128, ge=1, doc="longest side of each grid thumbnail, px")
 
 

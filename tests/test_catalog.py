@@ -14,7 +14,7 @@ from go_pipeline.catalog import STEP_OUTPUTS
 from go_pipeline.pipeline import load_pipeline
 
 REPO = Path(__file__).resolve().parents[1]
-FILE_NAME = re.compile(r"^[\w.-]+\.(npz|npy|json|png|gif|ply|safetensors|pt|jpg)$")
+FILE_NAME = re.compile(r"^[\w.-]+\.(npz|npy|json|png|gif|ply|safetensors|pt|jpg|csv|mp4)$")
 
 
 def _catalogue() -> list[art.Artifact]:
