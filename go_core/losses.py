@@ -3,7 +3,7 @@
 Image tensors are accepted as [B,3,H,W] or [H,W,3] (a single image, channels last, as the renderer returns
 per camera) or [B,H,W,3] when ``channels_last=True``; all functions are differentiable.
 
-``ssim`` of one float32 CPU image pair runs the compiled kernel (go_core/render/csrc/ssim.cpp, part of the
+``ssim`` of one float32 CPU image pair runs the compiled kernel (go_core/kernels/csrc/ssim.cpp, part of the
 CPU rasterizer extension: double-precision filtering and a hand-written backward, ~4x faster than the torch
 path); ``ssim_map`` is the torch reference (any dtype/device/batch, autograd).
 """
@@ -199,7 +199,7 @@ def photometric_terms(
 
     ``pred``/``target`` are [H,W,3] (the renderer's layout), ``alpha`` any shape of H·W elements (e.g. the
     renderer's [H,W] or [1,H,W,1]), ``mask`` [H,W]. A float32 CPU view runs all three in one compiled pass
-    forward and one backward (go_core/render/csrc/ssim.cpp: SSIM and L1 in float64 sums, the BCE value with
+    forward and one backward (go_core/kernels/csrc/ssim.cpp: SSIM and L1 in float64 sums, the BCE value with
     float32 vector logs, as torch's float32 mask_bce, summed in float64; its gradient in float64), instead of
     ~30 small torch ops; anything else runs the three torch functions.
     """

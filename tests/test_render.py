@@ -288,16 +288,22 @@ def test_build_key_and_missing_compiler(monkeypatch, tmp_path):
     key = build.build_key()
     assert key == build.build_key() and len(key) == 16
     # the same sources in another checkout get their own build dir (ninja files hold absolute paths)
-    other = tmp_path / "checkout" / "csrc"
-    other.mkdir(parents=True)
+    other = tmp_path / "checkout" / "go_core" / "render"
     for name in build.SOURCES + build.HEADERS:
-        (other / name).write_bytes((build.CSRC / name).read_bytes())
-    monkeypatch.setattr(build, "CSRC", other)
+        (other / name).parent.mkdir(parents=True, exist_ok=True)
+        (other / name).write_bytes((build.HERE / name).read_bytes())
+    monkeypatch.setattr(build, "HERE", other)
+    monkeypatch.setattr(build, "CSRC", other / "csrc")
     other_key = build.build_key()
     assert other_key != key
-    # a header is part of the binary too
-    (other / build.HEADERS[0]).write_text((other / build.HEADERS[0]).read_text() + "\n// edited\n")
+    # a header is part of the binary too, and so is a kernel outside render/
+    header = other / build.HEADERS[0]
+    header.write_text(header.read_text() + "\n// edited\n")
     assert build.build_key() != other_key
+    edited = build.build_key()
+    adam = other / next(s for s in build.SOURCES if s.endswith("adam.cpp"))
+    adam.write_text(adam.read_text() + "\n// edited\n")
+    assert build.build_key() != edited
     monkeypatch.undo()
     monkeypatch.setenv("TORCH_EXTENSIONS_DIR", str(tmp_path))
     assert build.build_root() == tmp_path

@@ -1,4 +1,4 @@
-"""The compiled SSIM loss kernel (go_core/render/csrc/ssim.cpp) against the float64 torch reference.
+"""The compiled SSIM loss kernel (go_core/kernels/csrc/ssim.cpp) against the float64 torch reference.
 
 ``go_core.losses.ssim`` runs the kernel for one float32 CPU image pair; ``ssim_map`` (torch, autograd) is the
 reference, itself checked against scikit-image and finite differences in tests/test_losses.py.

@@ -1,8 +1,9 @@
 """Build once per machine and load the compiled CPU rasterizer (`python -m go_core.render.build` prebuilds).
 
-The extension (the rasterizer, and the SSIM loss kernel that ``go_core.losses.ssim`` reaches through
-``torch.ops.go_ssim``) is compiled from go_core/render/csrc/*.cpp with the system C++ compiler through
-``torch.utils.cpp_extension.load`` (ninja). The build directory is keyed by a hash of the sources and their
+The extension (the rasterizer from go_core/render/csrc, and the kernels that are not rendering from
+go_core/kernels/csrc: the fused Adam step and the loss terms ``go_core.losses`` reaches through
+``torch.ops.go_ssim``) is compiled with the system C++ compiler through ``torch.utils.cpp_extension.load``
+(ninja). The build directory is keyed by a hash of the sources and their
 folder, flags, torch/python versions and the CPU's instruction-set flags (the code is built with
 ``-march=native``), under ``$TORCH_EXTENSIONS_DIR`` if set, else ``~/.cache/go-pipeline/torch_extensions``.
 Later calls only load it.
@@ -20,12 +21,20 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = ("rasterize.cpp", "project.cpp", "ssim.cpp", "adam.cpp")
-HEADERS = ("simd.h",)
-# every file the extension is built from, relative to this folder: read with ast by the pipeline's code hash
-# (a step that loads the extension reruns when a kernel changes); tests/test_codehash.py holds it to the above
-NATIVE_SOURCES = ("csrc/rasterize.cpp", "csrc/project.cpp", "csrc/ssim.cpp", "csrc/adam.cpp", "csrc/simd.h")
+HERE = Path(__file__).resolve().parent
+CSRC = HERE / "csrc"  # the rasterizer (projection, binning, compositing) and the shared vector header
+# Every file the extension is built from, relative to this folder: the rasterizer and the kernels that are
+# not rendering (go_core/kernels: fused Adam, loss terms). Also read with ast by the pipeline's code hash, so
+# a step that loads the extension reruns when one of them changes.
+NATIVE_SOURCES = (
+    "csrc/rasterize.cpp",
+    "csrc/project.cpp",
+    "../kernels/csrc/ssim.cpp",
+    "../kernels/csrc/adam.cpp",
+    "csrc/simd.h",
+)
+SOURCES = tuple(s for s in NATIVE_SOURCES if s.endswith(".cpp"))
+HEADERS = tuple(s for s in NATIVE_SOURCES if s.endswith(".h"))
 CFLAGS = ("-O3", "-march=native", "-fopenmp", "-fno-math-errno")
 LDFLAGS = ("-fopenmp",)
 
@@ -65,7 +74,7 @@ def build_key() -> str:
     h.update(str(CSRC).encode())
     for name in SOURCES + HEADERS:
         h.update(name.encode())
-        h.update((CSRC / name).read_bytes())
+        h.update((HERE / name).read_bytes())
     h.update(" ".join(CFLAGS + LDFLAGS).encode())
     h.update(torch.__version__.encode())
     h.update(sys.version.encode())
@@ -103,7 +112,8 @@ def load_extension(verbose: bool = False):
     try:
         module = cpp_extension.load(
             name=name,
-            sources=[str(CSRC / s) for s in SOURCES],
+            sources=[str((HERE / s).resolve()) for s in SOURCES],
+            extra_include_paths=[str(CSRC)],  # simd.h for the kernels in go_core/kernels
             extra_cflags=list(CFLAGS),
             extra_ldflags=list(LDFLAGS),
             build_directory=str(build_dir),
