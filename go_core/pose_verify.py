@@ -25,6 +25,7 @@ import numpy as np
 from go_core.camera import Camera
 from go_core.errors import EmptyHullError
 from go_core.hull import hull_bounds, inside_masks
+from go_core.seeding import numpy_rng
 
 MIN_SPREAD_DEG = 15.0  # 4 photos around an object span ~90-180°; a static-background estimate ~1°
 MIN_COVERAGE = 0.95  # dev + real train views: correct poses >= 0.995, one camera turned 5° <= 0.89
@@ -73,7 +74,7 @@ def mask_coverage(
 
     masks = [np.asarray(m, np.float32) for m in masks]
     lo, hi = hull_bounds(cameras, masks, min_views=len(cameras), threshold=threshold)
-    rng = np.random.default_rng(seed)
+    rng = numpy_rng(seed)
     coverage = []
     for i, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
         m = (mask > threshold).astype(np.uint8)

@@ -97,6 +97,7 @@ def test_steps_end_to_end(tmp_path):
 
     params = {
         "iterations": 30,
+        "schedule_iterations": 0,  # the schedules below as written (not scaled from the paper's 10 000)
         "densify_from": 5,
         "densify_until": 25,
         "densify_every": 5,
@@ -158,7 +159,11 @@ def test_steps_end_to_end(tmp_path):
     assert imageio_ffmpeg.count_frames_and_secs(str(ctx.out_dir / "camera_path.mp4"))[0] == 3 * n_train
     again = Ctx(tmp_path, "turntable2")
     turntable.run(
-        again, inputs, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4, "path_frames": 3}
+        again,
+        inputs,
+        step_params(
+            turntable.__name__, {"frames": 6, "fps": 10, "max_size": 24, "sheet_frames": 4, "path_frames": 3}
+        ),
     )
     assert (again.out_dir / "camera_path.mp4").read_bytes() == (ctx.out_dir / "camera_path.mp4").read_bytes()
 
