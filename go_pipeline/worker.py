@@ -1,4 +1,5 @@
-"""Child-process entry point that runs one step: ``python -m go_pipeline.worker EVENT_FD < spec.json``.
+"""Child-process entry point that runs one step: ``python -P -m go_pipeline.worker EVENT_FD < spec.json``
+(``-P``: the current directory, e.g. a scene folder, cannot shadow the package; see executor.worker_command).
 
 Running each step in its own process gives an honest per-step peak memory and CPU time (measured by the
 child itself, see ``own_usage``; ``os.wait4`` in the parent is the fallback) and returns the step's memory
@@ -74,6 +75,20 @@ def run_step_in_process(spec: dict, sink, log: logging.Logger):
     return ctx
 
 
+LIBRARY_LOGGERS = ("go_core.render.build",)  # one-time notices (e.g. "compiling once") for the user
+
+
+def library_notices(handler: logging.Handler) -> None:
+    """Route the INFO lines of ``LIBRARY_LOGGERS`` to the run log and console, like the step's own."""
+    for name in LIBRARY_LOGGERS:
+        logger = logging.getLogger(name)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+        for old in list(logger.handlers):
+            logger.removeHandler(old)
+        logger.addHandler(handler)
+
+
 def rasterizer_build_seconds() -> float:
     """Seconds this process spent compiling the CPU rasterizer (0 if it never loaded it)."""
     build = sys.modules.get("go_core.render.build")
@@ -122,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     log.setLevel(logging.DEBUG)
     log.propagate = False
     log.addHandler(SinkLogHandler(sink))
+    library_notices(SinkLogHandler(sink))
     try:
         ctx = run_step_in_process(spec, sink, log)
         sink.send({"type": "done", "device": ctx.resolved_device(), **own_usage()})
