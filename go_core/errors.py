@@ -26,6 +26,10 @@ class MissingWeightsError(GoError):
     """A model needed by a step has no local weights; the message says what is missing and how to get it."""
 
 
+class InvalidGaussiansError(GoError):
+    """Gaussian parameters the rasterizer cannot render meaningfully (NaN/inf, or scales >= 1e20)."""
+
+
 class EmptyHullError(GoError):
     """The mask frusta do not intersect: the masks do not overlap, the poses are probably wrong."""
 

@@ -7,6 +7,7 @@ coefficients as [N, (D+1)², 3] (DC first). Colour = SH·basis + 0.5, clamped at
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -34,6 +35,20 @@ def sh_degree_of(num_bases: int) -> int:
     if num_bases != (degree + 1) ** 2:
         raise ValueError(f"{num_bases} is not a square number of SH coefficients")
     return degree
+
+
+MAX_LOG_SCALE = math.log(1e20)  # larger Gaussians overflow the projected covariance (float32): dropped
+
+
+def _invalid(what: str, problem: str, bad: torch.Tensor, where: str | Path | None):
+    from go_core.errors import InvalidGaussiansError
+
+    idx = torch.nonzero(bad).flatten()
+    return InvalidGaussiansError(
+        f"{len(idx)} of {len(bad)} Gaussians have {what} {problem} (first: index {int(idx[0])}); "
+        "the model cannot be rendered",
+        where,
+    )
 
 
 @dataclass
@@ -126,5 +141,28 @@ class Gaussians:
 
     @staticmethod
     def load(path: str | Path) -> Gaussians:
-        with np.load(path) as data:
-            return Gaussians(**{f.name: torch.from_numpy(data[f.name].copy()) for f in fields(Gaussians)})
+        """Read a ``.npz`` written by ``save``; ``InvalidGaussiansError`` (naming the file) when its
+        parameters cannot be rendered (see ``check_renderable``)."""
+        with np.load(path, allow_pickle=False) as data:
+            g = Gaussians(**{f.name: torch.from_numpy(data[f.name].copy()) for f in fields(Gaussians)})
+        g.check_renderable(path)
+        return g
+
+    def check_renderable(self, where: str | Path | None = None) -> None:
+        """One clear error for parameters the rasterizer would turn into NaN gradients or silently drop:
+        non-finite means, quaternions, opacities or colours, and scales that are not finite or >= 1e20.
+        Called where a step starts (loading Gaussians, starting an optimisation), not per render."""
+        checks = (
+            ("means", self.means),
+            ("quaternions", self.quats),
+            ("opacities", self.opacity_logits),
+            ("colours (SH)", self.sh),
+        )
+        for what, t in checks:
+            bad = ~torch.isfinite(t.detach()).reshape(len(t), -1).all(1)
+            if bool(bad.any()):
+                raise _invalid(what, "not finite (NaN or inf)", bad, where)
+        log_s = self.log_scales.detach()
+        bad = ~(torch.isfinite(log_s) & (log_s < MAX_LOG_SCALE)).all(1)
+        if bool(bad.any()):
+            raise _invalid("scales", "not finite or >= 1e20", bad, where)

@@ -129,6 +129,26 @@ def _initial_box(
     return target - 2.0 * radius, target + 2.0 * radius
 
 
+def _empty_hull_message(cameras: list[Camera], inside: np.ndarray, min_views: int) -> str:
+    """Name the camera(s) whose mask cone misses the region the other cameras' masks agree on: without
+    such a camera the hull would not be empty (its pose is wrong, or it looks away)."""
+    counts = inside.sum(0)
+    missing = []
+    for i, cam in enumerate(cameras):
+        others = counts - inside[i]
+        agreed = others >= max(min_views - 1, 1)
+        if agreed.any() and not (inside[i] & agreed).any():
+            missing.append(cam.name)
+    if missing:
+        which = ", ".join(repr(n) for n in missing)
+        cones = "cone misses" if len(missing) == 1 else "cones miss"
+        return (
+            f"the visual hull is empty: the mask {cones} of camera {which} the region the other cameras' "
+            "masks agree on; that pose is probably wrong (or the camera looks away)"
+        )
+    return "the visual hull is empty: the masks do not overlap in 3D, the poses are probably wrong"
+
+
 def hull_bounds(
     cameras: list[Camera],
     masks: list[np.ndarray],
@@ -146,13 +166,12 @@ def hull_bounds(
         for res in (resolution, 2 * resolution) if r == 0 else (resolution,):
             axes = [np.linspace(lo[k], hi[k], res) for k in range(3)]
             grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-            keep = inside_masks(grid, cameras, masks, threshold).sum(0) >= min_views
+            inside = inside_masks(grid, cameras, masks, threshold)
+            keep = inside.sum(0) >= min_views
             if keep.any():
                 break
         if not keep.any():
-            raise EmptyHullError(
-                "the visual hull is empty: the masks do not overlap in 3D, the poses are probably wrong"
-            )
+            raise EmptyHullError(_empty_hull_message(cameras, inside, min_views))
         step = (hi - lo) / (res - 1)
         pts = grid[keep]
         lo, hi = pts.min(0) - 1.5 * step, pts.max(0) + 1.5 * step

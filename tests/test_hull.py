@@ -72,10 +72,32 @@ def test_empty_hull_raises_a_clear_error():
     # move one view's silhouette to a corner: it no longer overlaps the others in 3D
     masks[2] = np.zeros_like(masks[2])
     masks[2][:10, :10] = 1.0
-    with pytest.raises(EmptyHullError, match="poses are probably wrong"):
+    with pytest.raises(EmptyHullError, match="pose is probably wrong"):
         visual_hull(cams, masks, num_points=100)
     with pytest.raises(EmptyHullError):
         visual_hull(cams, [np.zeros_like(m) for m in masks], num_points=100)
+
+
+def test_empty_hull_names_the_camera_that_looks_away():
+    """Four views of a sphere; one camera turned to look away from it: the error names that camera."""
+    cams = axis_cameras(200.0, 1.0) + [
+        look_at(
+            "c3",
+            np.array([-200.0, 0, 0]),
+            np.zeros(3),
+            np.array([0, 0, 1.0]),
+            axis_cameras(200.0, 1.0)[0].K,
+            128,
+            128,
+        )
+    ]
+    masks = [sphere_mask(c, np.zeros(3), 1.0) for c in cams]
+    away = cams[1]
+    cams[1] = look_at(
+        "c1", away.center, away.center + (away.center - np.zeros(3)), np.array([0, 0, 1.0]), away.K, 128, 128
+    )
+    with pytest.raises(EmptyHullError, match="mask cone misses .* camera 'c1' the region"):
+        visual_hull(cams, masks, num_points=100)
 
 
 def test_colours_come_from_the_views_that_see_the_point_and_gaussians_follow():

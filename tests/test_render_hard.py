@@ -248,3 +248,35 @@ def test_odd_image_sizes_match_reference(cpu_ext, size):
     cpu = render(*[t.float() for t in scene], W, H, sh_degree=3, backend="cpu")
     assert cpu.rgb.shape == (2, H, W, 3)
     assert float((cpu.rgb.double() - ref.rgb).abs().max()) < 1e-5
+
+
+@pytest.mark.parametrize(
+    "field,index,value,what",
+    [
+        ("means", (3, 0), float("nan"), "means not finite"),
+        ("means", (5, 2), float("inf"), "means not finite"),
+        ("quats", (7, 1), float("nan"), "quaternions not finite"),
+        ("log_scales", (2, 0), float("inf"), "scales not finite or >= 1e20"),
+        ("log_scales", (4, 1), 46.1, "scales not finite or >= 1e20"),  # exp(46.1) > 1e20: would vanish
+        ("opacity_logits", (6,), float("nan"), "opacities not finite"),
+        ("sh", (1, 0, 2), float("-inf"), r"colours \(SH\) not finite"),
+    ],
+)
+def test_invalid_gaussians_give_one_clear_error_at_step_start(tmp_path, field, index, value, what):
+    """NaN/inf means, quaternions, opacities or colours and scales >= 1e20 (which the rasterizer turns into
+    NaN gradients or drops silently) are one error naming the file, the count and the first index, when a
+    step loads the model or starts optimising it."""
+    from go_core.errors import InvalidGaussiansError
+    from go_core.gaussians import Gaussians
+    from go_core.training import CoarseConfig, optimize
+
+    g = Gaussians.from_points(torch.rand(10, 3), torch.rand(10, 3), torch.full((10,), 0.05), 0.5, 1)
+    getattr(g, field)[index] = value
+    path = g.save(tmp_path / "gaussians.npz")
+    expected = f"gaussians.npz: 1 of 10 Gaussians have {what}.* .first: index {index[0]}\\)"
+    with pytest.raises(InvalidGaussiansError, match=expected):
+        Gaussians.load(path)
+    with pytest.raises(InvalidGaussiansError, match=what):
+        optimize(g, [object()], CoarseConfig(iterations=1), generator=torch.Generator(), extent=1.0)
+    ok = Gaussians.from_points(torch.rand(10, 3), torch.rand(10, 3), torch.full((10,), 1e3), 0.5, 1)
+    Gaussians.load(ok.save(tmp_path / "ok.npz"))  # large but finite scales are fine
