@@ -213,12 +213,13 @@ def _save_checkpoint(spec: CheckpointSpec, payload: dict, step: int) -> None:
 
 
 def _load_newest(spec: CheckpointSpec, fingerprint: str) -> dict | None:
+    from go_core.io.checkpoint import try_load_checkpoint
+
     if not spec.directory.is_dir():
         return None
     for path in sorted(spec.directory.glob("ckpt_*.pt"), reverse=True):
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception:  # a truncated file cannot exist (atomic writes), but be robust to foreign files
+        payload = try_load_checkpoint(path)  # tensors and plain containers only: never code
+        if not isinstance(payload, dict):
             continue
         if payload.get("format") == CHECKPOINT_FORMAT and payload.get("fingerprint") == fingerprint:
             return payload
@@ -253,6 +254,7 @@ def optimize(
     if not views:
         raise ValueError("optimize needs at least one view")
     extent = scene_extent([v.camera for v in views]) if extent is None else float(extent)
+    gaussians.check_renderable()  # one clear error now, not NaN gradients or silently dropped Gaussians
     g0 = gaussians.detach().to(dtype=torch.float32).with_sh_degree(config.sh_degree)
     opt = GaussianOptimizer(g0, config, extent)
     if strategy is None:

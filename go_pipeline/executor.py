@@ -109,9 +109,11 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
     env = dict(os.environ)
     set_default_wait(env)  # libgomp reads it when torch loads it: in the child's environment
     env.setdefault("PYTHONUNBUFFERED", "1")
+    env["PYTHONSAFEPATH"] = "1"  # processes the step starts (multiprocessing) never import from their cwd
+    oom_before = _oom_kills()
     t0 = time.perf_counter()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "go_pipeline.worker", str(write_fd)],
+        worker_command(write_fd),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -184,8 +186,6 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
             outcome["message"],
             outcome.get("traceback", ""),
         )
-    how = f"signal {-proc.returncode}" if proc.returncode < 0 else f"exit code {proc.returncode}"
-    hint = " (killed by the kernel: out of memory?)" if proc.returncode == -9 else ""
     return Execution(
         False,
         wall,
@@ -195,5 +195,44 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
         records,
         "killed",
         "ProcessDied",
-        f"the step process died with {how}{hint}",
+        death_message(proc.returncode, _oom_kills() > oom_before),
     )
+
+
+def worker_command(event_fd: int) -> list[str]:
+    """The step worker's command line. The current directory must not shadow the package: with ``-m`` a
+    scene folder carrying ``go_pipeline/worker.py`` would run its own code (``-P``: Python 3.11+; 3.10
+    drops the cwd entry before importing anything)."""
+    if sys.version_info >= (3, 11):
+        return [sys.executable, "-P", "-m", "go_pipeline.worker", str(event_fd)]
+    bootstrap = (
+        "import sys; sys.path[:] = [p for p in sys.path if p not in ('', '.')]; "
+        "from go_pipeline.worker import main; sys.exit(main())"
+    )
+    return [sys.executable, "-c", bootstrap, str(event_fd)]
+
+
+def death_message(returncode: int, oom_killed: bool = False) -> str:
+    """What ended a step process that reported nothing: a signal (named) or an exit code."""
+    import signal
+
+    if returncode >= 0:
+        return f"the step process exited with code {returncode} without reporting a result"
+    number = -returncode
+    try:
+        name = signal.Signals(number).name
+    except ValueError:
+        name = "unknown signal"
+    why = " by the kernel's out-of-memory killer" if oom_killed else ""
+    return f"the step process was killed{why} by signal {number} ({name})"
+
+
+def _oom_kills() -> int:
+    """The cgroup's count of out-of-memory kills (cgroup v2 ``memory.events``), 0 where unreadable."""
+    try:
+        for line in open("/sys/fs/cgroup/memory.events", encoding="ascii"):
+            if line.startswith("oom_kill "):
+                return int(line.split()[1])
+    except (OSError, ValueError):
+        pass
+    return 0

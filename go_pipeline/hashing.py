@@ -4,8 +4,9 @@
 * ``cache_key``: sha256 of the step name, its code (go_pipeline.codehash), an optional VERSION override,
   resolved params, seed and its inputs' content hashes.
 * ``files_hash``: content hash of a set of files (relative name + bytes), used for artifacts and the scene.
-* ``FileHashCache``: per-file sha256 remembered by (relative path, size, mtime_ns), so a no-op run over
-  an unchanged scene folder only stats its files.
+* ``FileHashCache``: per-file sha256 remembered by the file's absolute real path and (device, inode, size,
+  mtime_ns, ctime_ns), so a no-op run over an unchanged scene folder only stats its files, and a copy of a
+  scene (same names, sizes and timestamps, other bytes) never reuses another file's hash.
 """
 
 from __future__ import annotations
@@ -47,14 +48,20 @@ def cache_key(
     seed: int,
     inputs: dict[str, str],
     code: str = "",
+    function: str = "",
+    external: dict[str, Any] | None = None,
 ) -> str:
     """``inputs`` maps input name -> content hash of that input (an artifact or the scene folder);
     ``code`` is the digest of the source files the step runs; ``version`` the module's optional VERSION
-    override (None when it defines none)."""
+    override (None when it defines none); ``function`` is the step's ``module:callable`` (another function
+    is another computation); ``external``: what it reads from outside the work dir (go_pipeline.external:
+    library versions, model files, LPIPS weights)."""
     material = {
         "step": step,
         "version": version,
         "code": code,
+        "function": function,
+        "external": external or {},
         "params": params,
         "seed": int(seed),
         "inputs": inputs,
@@ -63,14 +70,22 @@ def cache_key(
 
 
 def walk_files(root: Path, exclude: Iterable[Path] = ()) -> list[Path]:
-    """Every regular file under ``root`` (following no symlinked folders), skipping the ``exclude`` dirs."""
+    """Every regular file under ``root``, following symlinked files and folders (a symlinked ``train/``
+    holds images the reader opens), each real folder once; skipping the ``exclude`` dirs. Paths are as
+    seen from ``root`` (not resolved)."""
     excluded = {os.path.realpath(p) for p in exclude}
     found: list[Path] = []
-    for dirpath, dirnames, filenames in os.walk(root):
+    seen_dirs: set[str] = set()
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
+        real = os.path.realpath(dirpath)
+        if real in seen_dirs:  # a symlink cycle, or a folder reached twice
+            dirnames[:] = []
+            continue
+        seen_dirs.add(real)
         dirnames[:] = sorted(
             d for d in dirnames if os.path.realpath(os.path.join(dirpath, d)) not in excluded
         )
-        for name in filenames:
+        for name in sorted(filenames):
             p = Path(dirpath) / name
             if p.is_file():
                 found.append(p)
@@ -78,7 +93,11 @@ def walk_files(root: Path, exclude: Iterable[Path] = ()) -> list[Path]:
 
 
 class FileHashCache:
-    """sha256 of files keyed by (relative path, size, mtime_ns); saved as JSON (atomically) on ``save``."""
+    """sha256 of files keyed by absolute real path, checked against (device, inode, size, mtime_ns,
+    ctime_ns); saved as JSON (atomically) on ``save``. ``ctime_ns`` cannot be set from user space, so a
+    file rewritten with its old size and mtime restored (``touch -r``, ``cp -p``) is hashed again."""
+
+    VERSION = 2
 
     def __init__(self, path: Path | None) -> None:
         self.path = path
@@ -87,18 +106,21 @@ class FileHashCache:
         if path is not None and path.is_file():
             try:
                 data = json.loads(path.read_text(encoding="utf-8"))
-                if isinstance(data, dict):
-                    self._entries = data
+                if isinstance(data, dict) and data.get("version") == self.VERSION:
+                    self._entries = dict(data.get("files") or {})
             except (OSError, ValueError):
                 self._entries = {}  # a corrupt cache is only a cache
 
-    def file_hash(self, path: Path, rel: str) -> str:
-        st = path.stat()
-        hit = self._entries.get(rel)
-        if hit is not None and hit[0] == st.st_size and hit[1] == st.st_mtime_ns:
-            return hit[2]
-        digest = sha256_file(path)
-        self._entries[rel] = [st.st_size, st.st_mtime_ns, digest]
+    def file_hash(self, path: Path, rel: str | None = None) -> str:
+        """sha256 of ``path``'s bytes (following symlinks); ``rel`` is accepted for compatibility."""
+        real = os.path.realpath(path)
+        st = os.stat(real)
+        stamp = [st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns]
+        hit = self._entries.get(real)
+        if isinstance(hit, list) and len(hit) == 6 and hit[:5] == stamp:
+            return hit[5]
+        digest = sha256_file(real)
+        self._entries[real] = [*stamp, digest]
         self._dirty = True
         return digest
 
@@ -107,7 +129,8 @@ class FileHashCache:
             return
         from go_core.io.atomic import atomic_write_text
 
-        atomic_write_text(self.path, json.dumps(self._entries, sort_keys=True))
+        data = {"version": self.VERSION, "files": self._entries}
+        atomic_write_text(self.path, json.dumps(data, sort_keys=True))
         self._dirty = False
 
 

@@ -55,6 +55,7 @@ def build_manifest(
     params: dict[str, Any],
     inputs: dict[str, dict[str, Any]],
     outputs: dict[str, str],
+    output_sizes: dict[str, int],
     content_hash: str,
     wall_s: float,
     cpu_s: float,
@@ -64,6 +65,7 @@ def build_manifest(
     finished: str,
     record: dict[str, Any],
     function: str,
+    external: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     return {
         "schema": SCHEMA_ID,
@@ -73,10 +75,12 @@ def build_manifest(
         "version": version,
         "code": code,
         "function": function,
+        "external": external or {},
         "seed": int(seed),
         "params": params,
         "inputs": inputs,
         "outputs": outputs,
+        "output_sizes": output_sizes,
         "content_hash": content_hash,
         "wall_s": round(float(wall_s), 4),
         "cpu_s": round(float(cpu_s), 4),

@@ -22,6 +22,8 @@ from typing import Any
 from go_core.config import SettingError, check_value, fields_of, from_mapping, to_mapping
 from go_core.errors import PipelineError, first_line
 
+INSTALLED_STEPS = "go_pipeline.steps"  # the package of the steps that ship with go-pipeline
+ALLOW_CUSTOM_STEPS_ENV = "GO_ALLOW_CUSTOM_STEPS"  # "1": same as --allow-custom-steps
 SCENE_INPUT = "@scene"  # the pseudo-input naming the scene folder itself (a step may be called `scene`)
 _STEP_KEYS = {"function", "inputs", "outputs", "params", "description"}
 _TOP_KEYS = {"version", "steps", "profiles"}
@@ -257,9 +259,25 @@ def _module_source(module: str, path: Path | str, step: str) -> Path:
     return Path(spec.origin)
 
 
-def load_pipeline(path: str | Path | None = None) -> Pipeline:
+def custom_steps_allowed(allow_custom_steps: bool | None = None) -> bool:
+    """The explicit opt-in to step functions outside go_pipeline.steps: the argument, else the environment."""
+    if allow_custom_steps is not None:
+        return bool(allow_custom_steps)
+    return os.environ.get(ALLOW_CUSTOM_STEPS_ENV, "") in ("1", "true", "yes")
+
+
+def is_installed_step(module: str) -> bool:
+    return module == INSTALLED_STEPS or module.startswith(INSTALLED_STEPS + ".")
+
+
+def load_pipeline(path: str | Path | None = None, allow_custom_steps: bool | None = None) -> Pipeline:
     """Parse and check pipeline.yaml: structure, function specs, inputs naming known steps, no cycles,
-    outputs as plain relative file names, profiles naming known steps and params of the right type."""
+    outputs as plain relative file names, profiles naming known steps and params of the right type.
+
+    A pipeline file is code: each step's ``function`` is imported and called. By default only the installed
+    steps (``go_pipeline.steps.*``) may be named; any other module needs ``allow_custom_steps`` (the CLI's
+    ``--allow-custom-steps``, or ``GO_ALLOW_CUSTOM_STEPS=1``). The check comes before anything is imported
+    (even locating a dotted module imports its parent packages)."""
     import yaml
 
     from go_pipeline.resources import default_pipeline_path
@@ -288,6 +306,15 @@ def load_pipeline(path: str | Path | None = None) -> Pipeline:
         raise PipelineError("'steps' must be a non-empty mapping of step name -> step", path)
 
     specs = {str(name): _parse_step(str(name), body, path) for name, body in raw_steps.items()}
+    if not custom_steps_allowed(allow_custom_steps):
+        for spec in specs.values():
+            if not is_installed_step(spec.module):
+                raise PipelineError(
+                    f"step {spec.name!r}: function {spec.function!r} is not an installed step "
+                    f"({INSTALLED_STEPS}.*); a pipeline file is code, so running functions of your own "
+                    f"needs --allow-custom-steps (or {ALLOW_CUSTOM_STEPS_ENV}=1)",
+                    path,
+                )
     for spec in specs.values():
         for input_name, upstream in spec.inputs.items():
             if upstream != SCENE_INPUT and upstream not in specs:

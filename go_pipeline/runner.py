@@ -96,6 +96,12 @@ class _Plan:
     scene_dir: Path
     workdir: Path
     seed: int
+    verify: bool = False  # full content-hash check of every cached artifact (else sizes only)
+    allow_outside: bool = False  # the scene may name files outside its folder
+    hash_cache: FileHashCache | None = None  # per-file sha256 cache (scene files, model files)
+    external: dict[str, dict[str, Any]] = field(default_factory=dict)  # step -> external_inputs(...)
+    verified: set[Path] = field(default_factory=set)  # artifacts whose files matched their sha256 this run
+    recomputed: dict[str, StepResult] = field(default_factory=dict)  # damaged upstreams rerun mid-run
 
 
 def _plan(
@@ -106,13 +112,14 @@ def _plan(
     seed: int,
     pipeline_path: str | Path | None,
     steps: Iterable[str] | None = None,
+    allow_custom_steps: bool | None = None,
 ) -> _Plan:
     scene = Path(scene_dir).resolve()
     if not scene.is_dir():
         raise SceneError("scene folder not found" if not scene.exists() else "not a folder", scene)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise PipelineError(f"seed must be an integer, got {seed!r}", "--seed")
-    pipeline = load_pipeline(pipeline_path)
+    pipeline = load_pipeline(pipeline_path, allow_custom_steps)
     params = pipeline.resolve_params(profile, overrides)
     names = list(pipeline.steps) if steps is None else list(steps)
     versions = {n: read_step_version(pipeline.steps[n].module, pipeline.path, n) for n in names}
@@ -121,16 +128,53 @@ def _plan(
 
 
 def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
-    cache_file = plan.workdir / "cache" / "file_hashes.json"
-    cache = FileHashCache(cache_file)
+    """Content hash of the scene: every file under the scene folder (through symlinks) and every file its
+    format files name (images, masks), wherever it lives. A named file outside the folder is an error
+    unless ``allow_outside``; then it is hashed under its absolute path."""
+    from go_core.scene.loader import scene_input_files
+
+    cache = _hash_cache(plan)
     hashes = folder_hashes(
         plan.scene_dir, exclude=[plan.scene_dir / store.WORKDIR_NAME, plan.workdir], cache=cache
     )
     if not hashes:
         raise SceneError("scene folder is empty", plan.scene_dir)
+    for named in scene_input_files(plan.scene_dir):
+        lexical = Path(os.path.normpath(os.path.join(plan.scene_dir, named)))
+        try:
+            rel = lexical.relative_to(plan.scene_dir).as_posix()
+        except ValueError:
+            rel = None
+        if rel is not None and not rel.startswith(store.WORKDIR_NAME + "/"):
+            if rel not in hashes and lexical.is_file():
+                hashes[rel] = cache.file_hash(lexical)
+            continue
+        if not plan.allow_outside:
+            raise SceneError(
+                f"the scene names a file outside its folder: {named} (an absolute or '../' path); "
+                "pass --allow-outside to read it (it is then part of the cache key)",
+                plan.scene_dir,
+            )
+        if lexical.is_file():
+            hashes["@outside" + lexical.as_posix()] = cache.file_hash(lexical)
     if cache_writable:
         cache.save()
     return combine_file_hashes(hashes)
+
+
+def _hash_cache(plan: _Plan) -> FileHashCache:
+    if plan.hash_cache is None:
+        plan.hash_cache = FileHashCache(plan.workdir / "cache" / "file_hashes.json")
+    return plan.hash_cache
+
+
+def _external(plan: _Plan, name: str) -> dict[str, Any]:
+    """Library versions, model files and LPIPS weights the step reads (go_pipeline.external), once."""
+    from go_pipeline.external import external_inputs
+
+    if name not in plan.external:
+        plan.external[name] = external_inputs(plan.params[name], _hash_cache(plan))
+    return plan.external[name]
 
 
 def _input_hashes(
@@ -157,6 +201,8 @@ def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
         plan.seed,
         {k: v["content_hash"] for k, v in inputs.items()},
         code=plan.code[name].digest,
+        function=plan.pipeline.steps[name].function,
+        external=_external(plan, name),
     )
 
 
@@ -176,6 +222,9 @@ def run_pipeline(
     quiet: bool = False,
     debug: bool = False,
     on_start: Callable[[Path], None] | None = None,
+    allow_custom_steps: bool | None = None,
+    verify: bool = False,
+    allow_outside: bool = False,
 ) -> RunSummary:
     """Run every stale step (up to ``until``) for one scene and return what happened to each step.
 
@@ -183,9 +232,14 @@ def run_pipeline(
     ``force``: steps to rerun even when cached (their descendants rerun only if the output changes).
     ``on_start(workdir)``: called once the work dir is locked, before any step (the CLI records the run's
     settings there).
+    ``verify``: check every cached artifact's files against their sha256 (always: their sizes; and the
+    full hash of each artifact a running step reads). A damaged artifact is recomputed.
+    ``allow_outside``: the scene may name image/mask files outside its folder (hashed into the key).
+    ``allow_custom_steps``: run step functions outside go_pipeline.steps (a pipeline file is code; None:
+    the GO_ALLOW_CUSTOM_STEPS environment variable decides).
     Raises GoError subclasses (PipelineError, SceneError, LockedError, StepFailed, a step's own GoError).
     """
-    pipeline = load_pipeline(pipeline_path)
+    pipeline = load_pipeline(pipeline_path, allow_custom_steps)
     if until is not None:
         pipeline.require_step(until, "--until", from_file=False)
         wanted = pipeline.ancestors(until) | {until}
@@ -199,8 +253,10 @@ def run_pipeline(
         raise PipelineError(f"--device must be auto, cpu or cuda, got {device!r}")
     if device == "cuda":
         require_cuda()
-    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline.path, selected)
+    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline.path, selected, allow_custom_steps)
     plan.pipeline = pipeline
+    plan.verify = bool(verify)
+    plan.allow_outside = bool(allow_outside)
 
     from go_pipeline.lock import WorkdirLock
 
@@ -269,6 +325,7 @@ def _run_locked(
             f"seed={plan.seed} until={until} force={sorted(force)} pipeline={pipeline.path} "
             f"python={sys.executable}"
         )
+        store.check_scene_binding(plan.workdir, plan.scene_dir, bind=True)
         store.sweep_leftovers(plan.workdir)
         if options["on_start"] is not None:
             options["on_start"](plan.workdir)
@@ -290,6 +347,8 @@ def _run_locked(
                     options["in_process"],
                 )
             )
+        results = [plan.recomputed.get(r.name, r) for r in results]
+        _hash_cache(plan).save()  # model-file hashes found while keying the steps
         summary = RunSummary(
             plan.scene_dir,
             plan.workdir,
@@ -337,8 +396,12 @@ def _run_one(
     key = _key_for(plan, name, inputs)
     final = store.artifact_path(plan.workdir, name, key)
     display.current_step = name
-    if not forced and _intact(final, spec):
-        manifest = store.load_manifest(final)
+    manifest, problem = (None, None) if forced else _check_artifact(final, spec, plan.verify)
+    if problem is not None:
+        display.log.warning(f"  {name:<12} damaged  {key[:12]} ({problem}); recomputing")
+    if manifest is not None:
+        if plan.verify:
+            plan.verified.add(final)
         done[name] = manifest
         store.write_ref(plan.workdir, name, key)
         record = manifest.get("record") or {}
@@ -349,6 +412,9 @@ def _run_one(
     from go_pipeline.skipping import cascade_skip, short_reason, write_skipped_outputs
 
     display.open_log()
+    if _verify_inputs(plan, spec, scene_hash, done, display, lock_fd, device, in_process):
+        # an upstream was damaged and recomputed: its content (so this key) may differ
+        return _run_one(plan, name, forced, scene_hash, done, display, lock_fd, device, in_process)
     skip = cascade_skip(_module_file(spec), spec.inputs, done)
     if skip is None:
         display.log.info(f"  {name:<12} running  {key[:12]} ...")
@@ -374,7 +440,7 @@ def _run_one(
         "device": device,
         "parent_pid": os.getpid(),
         "pipeline_path": str(plan.pipeline.path),
-        "sys_path": [p for p in sys.path if p],
+        "sys_path": _worker_sys_path(),
     }
     started = _utc_now()
     from go_pipeline.executor import Execution, execute
@@ -410,6 +476,7 @@ def _run_one(
             )
         outputs = folder_hashes(tmp)
         outputs.pop(store.MANIFEST, None)
+        sizes = {rel: (tmp / rel).stat().st_size for rel in outputs}
         content_hash = combine_file_hashes(outputs)
         manifest = build_manifest(
             step=name,
@@ -420,6 +487,7 @@ def _run_one(
             params=plan.params[name],
             inputs=inputs,
             outputs=outputs,
+            output_sizes=sizes,
             content_hash=content_hash,
             wall_s=result.wall_s,
             cpu_s=result.cpu_s,
@@ -429,6 +497,7 @@ def _run_one(
             finished=_utc_now(),
             record=result.records,
             function=spec.function,
+            external=_external(plan, name),
         )
         check_manifest(manifest, tmp / store.MANIFEST)
         from go_core.io.atomic import atomic_write_json
@@ -443,6 +512,7 @@ def _run_one(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     store.write_ref(plan.workdir, name, key)
+    plan.verified.add(final)  # hashed just now
     shutil.rmtree(ckpt, ignore_errors=True)
     _remove_if_empty(ckpt.parent)
     done[name] = manifest
@@ -460,9 +530,62 @@ def _run_one(
     return StepResult(name, status, key, final, False, result.wall_s, result.records)
 
 
-def _intact(artifact: Path, spec: StepSpec) -> bool:
-    """Complete (manifest present) and still holding every declared output (stat only)."""
-    return store.is_complete(artifact) and all((artifact / o).is_file() for o in spec.outputs)
+def _check_artifact(
+    artifact: Path, spec: StepSpec, full: bool
+) -> tuple[dict[str, Any] | None, str | None]:
+    """(manifest, None) for a usable artifact; (None, problem) for a damaged one (unreadable manifest,
+    a file missing or of the wrong size, with ``full`` a wrong sha256); (None, None) when there is none."""
+    if not store.is_complete(artifact):
+        return None, None
+    try:
+        manifest = store.verify_artifact(artifact, full)
+    except store.DamagedArtifact as e:
+        return None, e.message
+    missing = [o for o in spec.outputs if o not in manifest["outputs"]]
+    if missing:
+        return None, f"declared output {missing[0]} is missing"
+    return manifest, None
+
+
+def _verify_inputs(
+    plan: _Plan,
+    spec: StepSpec,
+    scene_hash: str | None,
+    done: dict[str, dict[str, Any]],
+    display,
+    lock_fd: int | None,
+    device: str,
+    in_process: bool,
+) -> bool:
+    """Before a step reads its upstream artifacts: check each one's files against their sha256 (once per
+    run). A damaged one is recomputed (one log line); returns True when that happened."""
+    recomputed = False
+    for up in spec.upstream:
+        artifact = store.artifact_path(plan.workdir, up, done[up]["key"])
+        if artifact in plan.verified:
+            continue
+        try:
+            store.verify_artifact(artifact, full=True)
+        except store.DamagedArtifact as e:
+            display.log.warning(
+                f"  {up:<12} damaged  {done[up]['key'][:12]} ({e.message}); "
+                f"recomputing before {spec.name} reads it"
+            )
+            plan.recomputed[up] = _run_one(
+                plan, up, True, scene_hash, done, display, lock_fd, device, in_process
+            )
+            recomputed = True
+            continue
+        plan.verified.add(artifact)
+    return recomputed
+
+
+def _worker_sys_path() -> list[str]:
+    """This process's import path for the step worker, without the current directory (a scene folder
+    there must not shadow the package) unless this very go_pipeline was imported from it."""
+    cwd = os.path.realpath(os.getcwd())
+    home = os.path.realpath(Path(__file__).resolve().parents[1])
+    return [p for p in sys.path if p and (os.path.realpath(p) != cwd or cwd == home)]
 
 
 def _rebuild_go_error(type_name: str, message: str) -> GoError:
@@ -548,10 +671,17 @@ def pipeline_status(
     overrides: dict[str, Any] | None = None,
     seed: int = 0,
     pipeline_path: str | Path | None = None,
+    allow_custom_steps: bool | None = None,
+    verify: bool = False,
+    allow_outside: bool = False,
 ) -> list[StatusRow]:
     """Every step as fresh (its artifact for the current key exists), stale (an older artifact exists;
-    the reason says what changed) or missing (never run); reads only manifests and file stats."""
-    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline_path)
+    the reason says what changed), damaged (its artifact does not match its manifest, or the manifest is
+    unreadable: the next run recomputes it) or missing (never run). Reads manifests and file stats; with
+    ``verify`` also hashes every artifact file against its manifest."""
+    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline_path, None, allow_custom_steps)
+    plan.allow_outside = bool(allow_outside)
+    store.check_scene_binding(plan.workdir, plan.scene_dir, bind=False)
     needs_scene = any(up == SCENE_INPUT for s in plan.pipeline.steps.values() for up in s.inputs.values())
     scene_hash = _scene_hash(plan, cache_writable=plan.workdir.is_dir()) if needs_scene else None
     done: dict[str, dict[str, Any]] = {}
@@ -559,28 +689,32 @@ def pipeline_status(
     states: dict[str, str] = {}
     for name, spec in plan.pipeline.steps.items():
         previous_dir = store.artifact_dir(plan.workdir, name)
-        previous = store.load_manifest(previous_dir) if previous_dir is not None else None
+        previous = store.read_manifest(previous_dir) if previous_dir is not None else None
         inputs = _input_hashes(spec, scene_hash, done, plan.scene_dir)
+        problem = None
         if inputs is not None:
             key = _key_for(plan, name, inputs)
-            if _intact(store.artifact_path(plan.workdir, name, key), spec):
-                done[name] = store.load_manifest(store.artifact_path(plan.workdir, name, key))
+            manifest, problem = _check_artifact(store.artifact_path(plan.workdir, name, key), spec, verify)
+            if manifest is not None:
+                done[name] = manifest
                 rows.append(StatusRow(name, "fresh", "", key))
                 states[name] = "fresh"
                 continue
         else:
             key = None
-        if previous is None:
+        if problem is not None:
+            state, reasons = "damaged", [problem]
+        elif previous is None:
             state, reasons = "missing", ["never run"]
         else:
             state, reasons = "stale", _what_changed(plan, name, previous, inputs)
-            if key is not None and store.is_complete(store.artifact_path(plan.workdir, name, key)):
-                reasons.insert(0, "artifact damaged (a declared output is missing)")
         blocked = [u for u in spec.upstream if states.get(u) != "fresh"]
         if blocked:
             reasons.append("upstream " + ", ".join(f"{u} is {states[u]}" for u in blocked))
         rows.append(StatusRow(name, state, "; ".join(reasons) or "key changed", key))
         states[name] = state
+    if plan.workdir.is_dir():
+        _hash_cache(plan).save()
     return rows
 
 
@@ -611,6 +745,9 @@ def _what_changed(
             reasons.append(
                 f"param {p} changed {old_params.get(p, '<unset>')!r} -> {new_params.get(p, '<unset>')!r}"
             )
+    from go_pipeline.external import describe_changes
+
+    reasons.extend(describe_changes(previous.get("external"), _external(plan, name)))
     if previous.get("seed") != plan.seed:
         reasons.append(f"seed changed {previous.get('seed')} -> {plan.seed}")
     if inputs is not None:

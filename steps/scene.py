@@ -24,6 +24,13 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
     problems = schema_problems("scene_manifest", manifest)
     if problems:  # a bug, not bad input: the artifact must never be marked complete
         raise SceneError(f"scene.json does not match scene_manifest.schema.json: {problems[0]}", MANIFEST)
+    if 0 < max_size < scene.original_max_side:
+        ctx.log.warning(
+            "images up to %d px on their longest side were downscaled to %d px (scene.max_size; "
+            "--set scene.max_size=0 keeps the full resolution: slower, and memory grows with the pixels)",
+            scene.original_max_side,
+            max_size,
+        )
     sizes = sorted({f"{c['width']}x{c['height']}" for c in manifest["train"] + manifest["test"]})
     ctx.log.info(
         "scene: %s, %d train + %d test views, %s (%s)",
@@ -39,5 +46,6 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
         test_views=len(scene.test),
         resolutions=sizes,
         split_source=scene.split_source,
+        downscaled_from=scene.original_max_side if 0 < max_size < scene.original_max_side else None,
         masks=sum(v.mask is not None for v in scene.train + scene.test),
     )

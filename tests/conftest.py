@@ -10,6 +10,9 @@ import pytest
 from go_pipeline.openmp import set_default_wait
 
 set_default_wait(os.environ)  # before torch loads libgomp (see go_pipeline/openmp.py)
+# the toy pipelines of the runner tests name their own step modules: the explicit opt-in to custom steps
+# (tests/test_trust.py checks the default, without it)
+os.environ["GO_ALLOW_CUSTOM_STEPS"] = "1"
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"

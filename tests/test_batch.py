@@ -57,4 +57,4 @@ def test_ray_batch_with_a_broken_scene(tmp_path, monkeypatch):
 
     for name in ("a", "c"):
         r = run_scene(str(root / name), options)
-        assert r["status"] == "ok" and r["ran"] == [] and set(r["cached"]) == {"scene", "coarse", "eval"}
+        assert r["status"] == "ok" and r["ran"] == [] and set(r["cached"]) == {"scene", "coarse", "eval"}, r

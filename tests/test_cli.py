@@ -102,7 +102,16 @@ def test_lock_contention_message(toy):
     with WorkdirLock(wd):
         done = toy.cli("run", str(toy.scene), "--pipeline", str(toy.pipeline))
     assert done.returncode == 2
-    assert one_error_line(done).startswith(f"error: {wd / 'lock'}: another go-pipeline run (pid ")
+    assert one_error_line(done).startswith(f"error: {wd / 'lock'}: another `go-pipeline run` (pid ")
+
+
+def test_lock_message_names_clean(toy):
+    """The holder's command is named: a `clean` holding the lock is not called a run."""
+    wd = toy.scene / ".go"
+    with WorkdirLock(wd, command="clean"):
+        done = toy.cli("run", str(toy.scene), "--pipeline", str(toy.pipeline))
+    assert done.returncode == 2
+    assert one_error_line(done).startswith(f"error: {wd / 'lock'}: another `go-pipeline clean` (pid ")
 
 
 def test_run_status_clean_roundtrip(toy):

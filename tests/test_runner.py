@@ -89,7 +89,10 @@ def test_cache_keys_stable_across_processes(toy, tmp_path):
     # and the key is exactly sha256 of the documented material
     m = store.load_manifest(store.artifact_dir(toy.scene / ".go", "double"))
     inputs = {"data": m["inputs"]["data"]["content_hash"]}
-    assert cache_key("double", "1", m["params"], 0, inputs, code=digest_of(m["code"])) == m["key"]
+    key = cache_key(
+        "double", "1", m["params"], 0, inputs, digest_of(m["code"]), m["function"], m["external"]
+    )
+    assert key == m["key"]
     assert set(m["code"]) == {f"{toy.pkg}/__init__.py", f"{toy.pkg}/double.py"}
 
 
@@ -213,7 +216,7 @@ def test_lock_stops_a_second_run(toy):
         with pytest.raises(LockedError) as info:
             run(toy)
         assert str(info.value) == (
-            f"{wd / 'lock'}: another go-pipeline run (pid {os.getpid()}) is using this "
+            f"{wd / 'lock'}: another `go-pipeline run` (pid {os.getpid()}) is using this "
             "work dir; wait for it to finish"
         )
         assert not (wd / "artifacts").exists()
@@ -255,7 +258,7 @@ def test_unwritable_workdir_and_damaged_artifact(toy, tmp_path):
     )
     first = run(toy)
     (first.step("double").artifact_dir / "doubled.json").unlink()  # a damaged cache entry is rebuilt
-    assert states(toy)["double"] == ("stale", "artifact damaged (a declared output is missing)")
+    assert states(toy)["double"] == ("damaged", "doubled.json is missing")
     again = run(toy)
     assert again.ran == ["double"] and content_hashes(toy.scene / ".go") == {
         s.name: store.load_manifest(s.artifact_dir)["content_hash"] for s in first.steps

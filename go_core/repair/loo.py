@@ -76,7 +76,9 @@ def run_one(
     info: dict = {"index": index, "name": left.camera.name}
     if before_path.is_file():
         before = Gaussians.load(before_path)
-        gen.set_state(torch.load(run_dir / "rng_after_phase1.pt", weights_only=False))
+        from go_core.io.checkpoint import load_checkpoint
+
+        gen.set_state(load_checkpoint(run_dir / "rng_after_phase1.pt"))  # a tensor: never code
     else:
         before, stats1 = optimize(
             init,
@@ -145,7 +147,9 @@ def run_is_done(run_dir: Path) -> bool:
 
 def load_clean_and_mask(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     """The left-out photo on white and its mask, uint8, as the run saved them."""
-    return np.load(Path(run_dir) / "clean.npy"), np.load(Path(run_dir) / "mask.npy")
+    run_dir = Path(run_dir)
+    clean = np.load(run_dir / "clean.npy", allow_pickle=False)
+    return clean, np.load(run_dir / "mask.npy", allow_pickle=False)
 
 
 def load_run(run_dir: Path) -> LooRun:
@@ -158,7 +162,7 @@ def load_run(run_dir: Path) -> LooRun:
         Gaussians.load(run_dir / "before.npz"),
         Gaussians.load(run_dir / "after.npz"),
         [int(f.stem.split("_")[1]) for f in files],
-        [np.load(f) for f in files],
+        [np.load(f, allow_pickle=False) for f in files],
         info,
     )
 

@@ -52,7 +52,7 @@ class LooPairs:
         meta = json.loads((loo_dir / "loo.json").read_text())
         self.stats = NoiseStats.from_json(meta["stats"])
         self.pairs = meta.get("pairs", [])
-        with np.load(loo_dir / "loo_pairs.npz") as data:
+        with np.load(loo_dir / "loo_pairs.npz", allow_pickle=False) as data:
             self.arrays = {k: data[k] for k in data.files}
 
     def __len__(self) -> int:

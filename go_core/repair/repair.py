@@ -96,8 +96,12 @@ class RepairCache:
         if period == self.period:
             return
         path = self._path(period)
+        data = None
         if path is not None and path.is_file():
-            data = torch.load(path, map_location="cpu", weights_only=True)
+            from go_core.io.checkpoint import try_load_checkpoint
+
+            data = try_load_checkpoint(path)  # tensors and plain containers only: never code
+        if isinstance(data, list):
             self.views = [
                 CachedView(
                     _cam_from_dict(v["camera"]),

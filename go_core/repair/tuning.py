@@ -43,10 +43,14 @@ class TuneSettings:
 
 
 def _newest(directory: Path, fingerprint: str) -> dict | None:
+    from go_core.io.checkpoint import try_load_checkpoint
+
     if not directory.is_dir():
         return None
     for path in sorted(directory.glob("lora_step_*.pt"), reverse=True):
-        payload = torch.load(path, map_location="cpu", weights_only=False)
+        payload = try_load_checkpoint(path)  # tensors and plain containers only: never code
+        if not isinstance(payload, dict):
+            continue
         if payload.get("format") == CKPT_FORMAT and payload.get("fingerprint") == fingerprint:
             return payload
     return None

@@ -72,6 +72,30 @@ def _not_a_scene_message(root: Path) -> str:
     return msg
 
 
+def scene_input_files(path: str | Path) -> list[Path]:
+    """Every file the reader opens for the scene at ``path`` (format files, images, masks), as the reader
+    names them (a ``file_path`` may be absolute or lead out of the folder with ``..``). Cheap: the format
+    files are parsed, no pixel is read. Problems are left to the reader; what can be named is listed."""
+    from go_core.scene.nerf import TEST_FILE
+
+    root = Path(path)
+    problems = Problems(strict=False)
+    fmt = detect_format(root)
+    if fmt == "nerf":
+        train, test = read_nerf_specs(root, problems)
+        files = [root / f for f in (TRAIN_FILE, TEST_FILE) if (root / f).is_file()]
+    elif fmt == "colmap":
+        train, test, _ = read_colmap_specs(root, 0, problems)
+        files = []
+    else:
+        return []
+    for spec in train + test:
+        files.append(spec.image_path)
+        if spec.mask_path is not None:
+            files.append(spec.mask_path)
+    return files
+
+
 def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) -> Scene | None:
     """Read a scene, reporting every problem to ``problems``; None when nothing usable was read."""
     root = Path(path)
@@ -109,12 +133,13 @@ def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) 
     if len(train) < 2 and not len(problems):  # else it is a consequence of the problems already listed
         where = root / TRAIN_FILE if fmt == "nerf" else root
         problems.add(f"fewer than 2 training views ({len(train)} usable); at least 2 are needed", where)
+    largest = max((max(v.camera.width, v.camera.height) for v in train + test), default=0)
     if max_size < 0:
         problems.add(f"max_size={max_size} must be 0 (keep) or positive", root)
     elif max_size > 0:
         train = [resize_view(v, max_size) for v in train]
         test = [resize_view(v, max_size) for v in test]
-    return Scene(root, fmt, train, test, source)
+    return Scene(root, fmt, train, test, source, original_max_side=largest)
 
 
 def load_scene(path: str | Path, views: int = 0, max_size: int = 0) -> Scene:

@@ -35,6 +35,7 @@ class Scene:
     train: list[View]
     test: list[View]
     split_source: str = ""  # where the train/test split came from (e.g. "sparse_4.txt", "transforms_*.json")
+    original_max_side: int = 0  # longest image side before a max_size downscale (0: not recorded)
 
     @property
     def train_cameras(self) -> list[Camera]:

@@ -9,6 +9,13 @@ from typing import Any
 def add_pipeline_args(p: argparse.ArgumentParser, params: bool = True) -> None:
     p.add_argument("--workdir", metavar="W", help="where artifacts go (default: SCENE/.go)")
     p.add_argument("--pipeline", metavar="FILE", help="pipeline.yaml to use (default: the packaged one)")
+    p.add_argument(
+        "--allow-custom-steps",
+        action="store_true",
+        default=None,
+        help="a pipeline file is code: let its steps name functions outside the installed steps "
+        "(go_pipeline.steps.*); only for pipeline files you trust",
+    )
     if params:
         p.add_argument("--profile", metavar="NAME", help="named param overrides from pipeline.yaml profiles")
         p.add_argument(
@@ -30,6 +37,12 @@ def add_pipeline_args(p: argparse.ArgumentParser, params: bool = True) -> None:
             action="store_true",
             help="forget the work dir's remembered profile / --set / seed (params.yaml) and start from "
             "pipeline.yaml's defaults",
+        )
+        p.add_argument(
+            "--allow-outside",
+            action="store_true",
+            help="let the scene's format files name images/masks outside the scene folder (absolute or "
+            "'../' paths); they are then hashed into the cache key like the folder's own files",
         )
 
 

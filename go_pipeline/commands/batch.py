@@ -42,6 +42,8 @@ def main(args: argparse.Namespace) -> int:
         "seed": args.seed or 0,
         "pipeline_path": str(Path(args.pipeline).resolve()) if args.pipeline else None,
         "device": args.device,
+        "allow_custom_steps": args.allow_custom_steps,
+        "allow_outside": args.allow_outside,
     }
     result = run_batch(
         args.root,

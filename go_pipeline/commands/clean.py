@@ -70,7 +70,7 @@ def clean(workdir: Path, steps: list[str] | None = None, old: bool = False) -> l
 
     if not workdir.is_dir():
         return []
-    with WorkdirLock(workdir):
+    with WorkdirLock(workdir, command="clean"):
         removed = plan_clean(workdir, steps, old)
         for p in removed:
             if p.is_dir() and not p.is_symlink():

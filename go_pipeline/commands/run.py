@@ -43,6 +43,12 @@ def add_parser(subparsers) -> None:
         "(default: WORKDIR/outputs)",
     )
     p.add_argument("--quiet", action="store_true", help="print only errors")
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="check every cached artifact's files against their content hashes (always: their sizes, "
+        "and the hashes of the artifacts a running step reads); a damaged one is recomputed",
+    )
     p.set_defaults(func=main)
 
 
@@ -107,6 +113,9 @@ def main(args: argparse.Namespace) -> int:
         force=args.force,
         seed=settings.seed,
         pipeline_path=args.pipeline,
+        allow_custom_steps=args.allow_custom_steps,
+        verify=args.verify,
+        allow_outside=args.allow_outside,
         device=args.device,
         in_process=args.in_process,
         quiet=args.quiet,

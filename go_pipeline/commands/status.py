@@ -14,6 +14,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("scene", help="scene folder")
     add_pipeline_args(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument(
+        "--verify",
+        action="store_true",
+        help="hash every artifact file and compare with its manifest (default: sizes only)",
+    )
     p.set_defaults(func=main)
 
 
@@ -31,8 +36,11 @@ def main(args: argparse.Namespace) -> int:
         overrides=settings.sets,
         seed=settings.seed,
         pipeline_path=args.pipeline,
+        allow_custom_steps=args.allow_custom_steps,
+        verify=args.verify,
+        allow_outside=args.allow_outside,
     )
-    running = WorkdirLock(workdir).holder()
+    running = WorkdirLock(workdir).holder_info()
     if args.json:
         print(json.dumps([row.__dict__ for row in rows], indent=2))
         return 0
@@ -48,7 +56,7 @@ def main(args: argparse.Namespace) -> int:
         why = f"  ({r.reason})" if r.reason else ""
         print(f"{r.step:<{width}}  {r.state:<7}{why}")
     if running is not None:
-        print(f"(a go-pipeline run, pid {running}, is working on this scene now)")
+        print(f"(a `go-pipeline {running[1]}`, pid {running[0]}, is working on this scene now)")
     stale = sum(r.state != "fresh" for r in rows)
     print(f"{len(rows) - stale} fresh, {stale} to run" if stale else "everything is up to date")
     return 0

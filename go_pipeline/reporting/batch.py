@@ -53,6 +53,8 @@ def run_scene(scene: str, options: dict[str, Any]) -> dict[str, Any]:
             device=options.get("device", "auto"),
             in_process=bool(options.get("in_process", False)),
             quiet=True,
+            allow_custom_steps=options.get("allow_custom_steps"),
+            allow_outside=bool(options.get("allow_outside", False)),
         )
         row["ran"] = summary.ran
         row["cached"] = [s.name for s in summary.steps if s.cached]
