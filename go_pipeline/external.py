@@ -12,6 +12,7 @@ change results, the model files its params name, and the LPIPS weights in the sh
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
@@ -50,12 +51,19 @@ def path_hash(path: Path, cache: FileHashCache | None) -> str:
     return "missing"
 
 
-def lpips_weight_hashes(nets: list[str], cache: FileHashCache | None) -> dict[str, str]:
-    from go_core.metrics.lpips_weights import weights_path
+def lpips_weights_file(net: str) -> Path:
+    """Where ``go-pipeline weights fetch`` puts the LPIPS weights of ``net`` (the same place as
+    go_core.metrics.lpips_weights.weights_path, without importing go_core.metrics, which imports torch:
+    ``status`` stays fast; tests/test_trust.py checks the two agree)."""
+    env = os.environ.get("GO_PIPELINE_CACHE")
+    root = Path(env).expanduser() if env else Path.home() / ".cache" / "go-pipeline"
+    return root / "lpips" / f"{net}.safetensors"
 
+
+def lpips_weight_hashes(nets: list[str], cache: FileHashCache | None) -> dict[str, str]:
     hashes = {}
     for net in sorted(set(nets)):
-        path = weights_path(net)
+        path = lpips_weights_file(net)
         hashes[net] = path_hash(path, cache) if path.is_file() else "absent"
     return hashes
 

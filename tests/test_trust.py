@@ -347,6 +347,10 @@ def test_lpips_weights_and_library_versions_are_in_the_key(tmp_path, monkeypatch
     assert set(absent["libraries"]) == {"torch", "numpy", "pycolmap", "opencv-contrib-python-headless"}
     assert absent["libraries"]["torch"] == dependency_versions()["torch"] != "absent"
     assert "lpips_weights" not in external_inputs({"iterations": 3}, None)
+    from go_core.metrics.lpips_weights import weights_path
+    from go_pipeline.external import lpips_weights_file
+
+    assert lpips_weights_file("vgg") == weights_path("vgg") == weights
     # ... and the runner keys the eval step with them
     scene = _example_copy(tmp_path / "scene")
     run_pipeline(scene, until="scene", quiet=True)

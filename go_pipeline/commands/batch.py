@@ -25,6 +25,13 @@ def add_parser(subparsers) -> None:
     p.add_argument("--num-cpus", type=int, default=None, help="local Ray CPUs (default: all of the machine)")
     p.add_argument("--cpus-per-scene", type=float, default=1.0, help="Ray CPUs reserved per scene task")
     p.add_argument("--gpus-per-scene", type=float, default=0.0, help="Ray GPUs reserved per scene task")
+    p.add_argument(
+        "--retries",
+        type=int,
+        default=2,
+        help="rerun a scene whose Ray worker or node died, up to this many times (it resumes from its "
+        "work dir; default 2)",
+    )
     add_pipeline_args(p)
     p.set_defaults(func=main)
 
@@ -48,6 +55,7 @@ def main(args: argparse.Namespace) -> int:
     result = run_batch(
         args.root,
         ray_address=args.ray_address,
+        retries=args.retries,
         num_cpus=args.num_cpus,
         cpus_per_scene=args.cpus_per_scene,
         gpus_per_scene=args.gpus_per_scene,

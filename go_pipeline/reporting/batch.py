@@ -41,6 +41,8 @@ def run_scene(scene: str, options: dict[str, Any]) -> dict[str, Any]:
     row: dict[str, Any] = {"scene": Path(scene).name, "path": str(scene), "status": "ok", "error": None}
     workdir = options.get("workdir_root")
     wd = str(Path(workdir) / Path(scene).name) if workdir else None
+    if options.get("batch_id"):
+        row["attempts"] = _count_attempt(scene, wd, str(options["batch_id"]))
     try:
         summary = run_pipeline(
             scene,
@@ -66,6 +68,18 @@ def run_scene(scene: str, options: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _count_attempt(scene: str, workdir: str | None, batch_id: str) -> int:
+    """This task's attempt number for the scene in this batch (Ray retries a task whose node died; the
+    retry resumes from the work dir's artifacts and checkpoints)."""
+    from go_pipeline import store
+
+    marks = store.workdir_for(scene, workdir) / "runs" / f"batch-{batch_id}.attempts"
+    marks.parent.mkdir(parents=True, exist_ok=True)
+    with open(marks, "a", encoding="ascii") as f:
+        f.write("+")
+    return marks.stat().st_size
+
+
 @dataclass
 class BatchResult:
     rows: list[dict[str, Any]]
@@ -86,12 +100,19 @@ def run_batch(
     gpus_per_scene: float = 0.0,
     options: dict[str, Any] | None = None,
     scenes: list[Path] | None = None,
+    retries: int = 2,
 ) -> BatchResult:
-    """Run every scene under ``root`` as one Ray task each; returns the rows in scene order."""
+    """Run every scene under ``root`` as one Ray task each; returns the rows in scene order.
+
+    A task whose worker or node dies is retried up to ``retries`` times (on any node; it resumes from the
+    scene's work dir, which every node must see); each row says its ``attempts``."""
+    import uuid
+
     import ray
 
     scenes = scenes if scenes is not None else find_scenes(root)
     options = dict(options or {})
+    options.setdefault("batch_id", uuid.uuid4().hex[:12])
     t0 = time.perf_counter()
     started_here = not ray.is_initialized()
     if started_here:
@@ -101,7 +122,9 @@ def run_batch(
         else:
             ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kwargs)
     try:
-        task = ray.remote(run_scene).options(num_cpus=cpus_per_scene, num_gpus=gpus_per_scene, max_retries=0)
+        task = ray.remote(run_scene).options(
+            num_cpus=cpus_per_scene, num_gpus=gpus_per_scene, max_retries=retries, retry_exceptions=False
+        )
         futures = [task.remote(str(s), options) for s in scenes]
         rows = []
         for scene, fut in zip(scenes, futures, strict=True):
@@ -126,6 +149,7 @@ def run_batch(
         "cluster_gpus": resources.get("GPU", 0.0),
         "cpus_per_scene": cpus_per_scene,
         "gpus_per_scene": gpus_per_scene,
+        "retries": retries,
     }
     return BatchResult(rows, time.perf_counter() - t0, info)
 
@@ -153,6 +177,7 @@ def table_rows(result: BatchResult) -> list[dict[str, Any]]:
             "total_cpu_s": (rep.get("totals") or {}).get("cpu_s"),
             "peak_mem_mb": (rep.get("totals") or {}).get("peak_mem_mb"),
             "batch_wall_s": r.get("batch_wall_s"),
+            "attempts": r.get("attempts"),
         }
         by_step = {s["name"]: s["wall_s"] for s in rep.get("steps", [])}
         row.update({f"wall_s_{s}": by_step.get(s) for s in steps})
