@@ -131,15 +131,13 @@ def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
     """Content hash of the scene: every file under the scene folder (through symlinks) and every file its
     format files name (images, masks), wherever it lives. A named file outside the folder is an error
     unless ``allow_outside``; then it is hashed under its absolute path."""
-    from go_core.scene.loader import scene_input_files
-
     cache = _hash_cache(plan)
     hashes = folder_hashes(
         plan.scene_dir, exclude=[plan.scene_dir / store.WORKDIR_NAME, plan.workdir], cache=cache
     )
     if not hashes:
         raise SceneError("scene folder is empty", plan.scene_dir)
-    for named in scene_input_files(plan.scene_dir):
+    for named in _named_scene_files(plan.scene_dir):
         lexical = Path(os.path.normpath(os.path.join(plan.scene_dir, named)))
         try:
             rel = lexical.relative_to(plan.scene_dir).as_posix()
@@ -160,6 +158,17 @@ def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
     if cache_writable:
         cache.save()
     return combine_file_hashes(hashes)
+
+
+def _named_scene_files(scene_dir: Path) -> list[Path]:
+    """The files a scene's format files name (go_core.scene.loader.scene_input_files); a folder without
+    format files (not a scene the packaged reader knows) names none, and costs no numpy import."""
+    known = ("transforms_train.json", "transforms_test.json", "sparse")
+    if not any((scene_dir / name).exists() for name in known):
+        return []
+    from go_core.scene.loader import scene_input_files
+
+    return scene_input_files(scene_dir)
 
 
 def _hash_cache(plan: _Plan) -> FileHashCache:
