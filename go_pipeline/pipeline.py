@@ -270,14 +270,27 @@ def is_installed_step(module: str) -> bool:
     return module == INSTALLED_STEPS or module.startswith(INSTALLED_STEPS + ".")
 
 
-def load_pipeline(path: str | Path | None = None, allow_custom_steps: bool | None = None) -> Pipeline:
+def require_installed_steps(pipeline: Pipeline, allow_custom_steps: bool | None = None) -> None:
+    """A pipeline file is code: each step's ``function`` is imported and called. Before anything is
+    imported or located (locating a dotted module imports its parent packages), only the installed steps
+    (``go_pipeline.steps.*``) pass, unless ``allow_custom_steps`` (the CLI's ``--allow-custom-steps``, or
+    ``GO_ALLOW_CUSTOM_STEPS=1``). Reading a pipeline's structure (``dag``, ``params``) needs no opt-in."""
+    if custom_steps_allowed(allow_custom_steps):
+        return
+    for spec in pipeline.steps.values():
+        if not is_installed_step(spec.module):
+            raise PipelineError(
+                f"step {spec.name!r}: function {spec.function!r} is not an installed step "
+                f"({INSTALLED_STEPS}.*); a pipeline file is code, so running functions of your own "
+                f"needs --allow-custom-steps (or {ALLOW_CUSTOM_STEPS_ENV}=1)",
+                pipeline.path,
+            )
+
+
+def load_pipeline(path: str | Path | None = None) -> Pipeline:
     """Parse and check pipeline.yaml: structure, function specs, inputs naming known steps, no cycles,
     outputs as plain relative file names, profiles naming known steps and params of the right type.
-
-    A pipeline file is code: each step's ``function`` is imported and called. By default only the installed
-    steps (``go_pipeline.steps.*``) may be named; any other module needs ``allow_custom_steps`` (the CLI's
-    ``--allow-custom-steps``, or ``GO_ALLOW_CUSTOM_STEPS=1``). The check comes before anything is imported
-    (even locating a dotted module imports its parent packages)."""
+    Nothing is imported here; whoever runs or locates step code first calls ``require_installed_steps``."""
     import yaml
 
     from go_pipeline.resources import default_pipeline_path
@@ -306,15 +319,6 @@ def load_pipeline(path: str | Path | None = None, allow_custom_steps: bool | Non
         raise PipelineError("'steps' must be a non-empty mapping of step name -> step", path)
 
     specs = {str(name): _parse_step(str(name), body, path) for name, body in raw_steps.items()}
-    if not custom_steps_allowed(allow_custom_steps):
-        for spec in specs.values():
-            if not is_installed_step(spec.module):
-                raise PipelineError(
-                    f"step {spec.name!r}: function {spec.function!r} is not an installed step "
-                    f"({INSTALLED_STEPS}.*); a pipeline file is code, so running functions of your own "
-                    f"needs --allow-custom-steps (or {ALLOW_CUSTOM_STEPS_ENV}=1)",
-                    path,
-                )
     for spec in specs.values():
         for input_name, upstream in spec.inputs.items():
             if upstream != SCENE_INPUT and upstream not in specs:

@@ -21,7 +21,14 @@ from go_core.errors import GoError, PipelineError, SceneError
 from go_pipeline import store
 from go_pipeline.codehash import CodeFingerprint, changed_files, fingerprint
 from go_pipeline.hashing import FileHashCache, cache_key, combine_file_hashes, folder_hashes
-from go_pipeline.pipeline import SCENE_INPUT, Pipeline, StepSpec, load_pipeline, read_step_version
+from go_pipeline.pipeline import (
+    SCENE_INPUT,
+    Pipeline,
+    StepSpec,
+    load_pipeline,
+    read_step_version,
+    require_installed_steps,
+)
 
 MAX_LOGS = 50
 
@@ -119,7 +126,8 @@ def _plan(
         raise SceneError("scene folder not found" if not scene.exists() else "not a folder", scene)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise PipelineError(f"seed must be an integer, got {seed!r}", "--seed")
-    pipeline = load_pipeline(pipeline_path, allow_custom_steps)
+    pipeline = load_pipeline(pipeline_path)
+    require_installed_steps(pipeline, allow_custom_steps)
     params = pipeline.resolve_params(profile, overrides)
     names = list(pipeline.steps) if steps is None else list(steps)
     versions = {n: read_step_version(pipeline.steps[n].module, pipeline.path, n) for n in names}
@@ -248,7 +256,8 @@ def run_pipeline(
     the GO_ALLOW_CUSTOM_STEPS environment variable decides).
     Raises GoError subclasses (PipelineError, SceneError, LockedError, StepFailed, a step's own GoError).
     """
-    pipeline = load_pipeline(pipeline_path, allow_custom_steps)
+    pipeline = load_pipeline(pipeline_path)
+    require_installed_steps(pipeline, allow_custom_steps)
     if until is not None:
         pipeline.require_step(until, "--until", from_file=False)
         wanted = pipeline.ancestors(until) | {until}
