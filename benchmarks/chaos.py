@@ -109,6 +109,34 @@ def _count_modes(events: list[dict[str, Any]]) -> dict[str, int]:
     return {m: sum(e["mode"] == m for e in events) for m in sorted({e["mode"] for e in events})}
 
 
+def summarize(opts, ref_wall: float, reference: dict, trials: list, cpu0) -> dict[str, Any]:
+    """The result so far, written to ``--out`` (after every trial, so a cut-off run leaves its figures)."""
+    cpu1 = os.times()
+    events = [e for t in trials for e in t["kills"] if e.get("landed")]
+    result = {
+        "command": "python benchmarks/chaos.py " + " ".join(sys.argv[1:]),
+        "profile": opts.profile,
+        "overrides": opts.sets,
+        "cpu": cpu_name(),
+        "note": "2 CPU cores shared with five other developers' jobs: wall times are inflated",
+        "reference_wall_s": round(ref_wall, 1),
+        "reference_files": len(reference),
+        "kills_landed": len(events),
+        "kills_by_mode": {
+            m: sum(e["mode"] == m for e in events) for m in sorted({e["mode"] for e in events})
+        },
+        "trials": len(trials),
+        "all_identical": all(t["identical"] for t in trials),
+        "children_cpu_s": round(
+            (cpu1.children_user - cpu0.children_user) + (cpu1.children_system - cpu0.children_system), 1
+        ),
+        "trial_results": trials,
+    }
+    opts.out.parent.mkdir(parents=True, exist_ok=True)
+    opts.out.write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kills", type=int, default=20, help="SIGKILLs that must land mid-run (default 20)")
@@ -171,30 +199,9 @@ def main() -> int:
             trial["resume_error"] = err.strip().splitlines()[-1:] if err.strip() else []
         trials.append(trial)
         print(f"trial {len(trials) - 1}: identical={trial['identical']} ({len(files)} files)", flush=True)
+        summarize(opts, ref_wall, reference, trials, cpu0)
 
-    cpu1 = os.times()
-    events = [e for t in trials for e in t["kills"] if e.get("landed")]
-    result = {
-        "command": "python benchmarks/chaos.py " + " ".join(sys.argv[1:]),
-        "profile": opts.profile,
-        "overrides": opts.sets,
-        "cpu": cpu_name(),
-        "note": "2 CPU cores shared with five other developers' jobs: wall times are inflated",
-        "reference_wall_s": round(ref_wall, 1),
-        "reference_files": len(reference),
-        "kills_landed": len(events),
-        "kills_by_mode": {
-            m: sum(e["mode"] == m for e in events) for m in sorted({e["mode"] for e in events})
-        },
-        "trials": len(trials),
-        "all_identical": all(t["identical"] for t in trials),
-        "children_cpu_s": round(
-            (cpu1.children_user - cpu0.children_user) + (cpu1.children_system - cpu0.children_system), 1
-        ),
-        "trial_results": trials,
-    }
-    opts.out.parent.mkdir(parents=True, exist_ok=True)
-    opts.out.write_text(json.dumps(result, indent=2) + "\n")
+    result = summarize(opts, ref_wall, reference, trials, cpu0)
     print(json.dumps({k: v for k, v in result.items() if k != "trial_results"}, indent=2))
     if not opts.root:
         shutil.rmtree(root, ignore_errors=True)
