@@ -2,10 +2,11 @@
 change results, the model files its params name, and the LPIPS weights in the shared cache.
 
 * Libraries: ``DEPENDENCIES`` (from package metadata; nothing is imported).
-* Model files: every string param named ``*_path`` or ``*_model`` (e.g. ``mask.onnx_model``,
-  ``depth.model_path``, ``weights.sd15_path``) that is set: the content hash of the file, or of every file
-  of the folder. Hashes are remembered by (device, inode, size, mtime, ctime) in the work dir's hash cache,
-  so a multi-GB model is read once, and an edited one (even at the same path) changes the key.
+* Model files: every set string param named ``*_path``, and every ``*_model`` param spelled as a path
+  (e.g. ``mask.onnx_model``, ``depth.model_path``, ``weights.sd15_path``): the content hash of the file,
+  or of every file of the folder. Hashes are remembered by (device, inode, size, mtime, ctime) in the work
+  dir's hash cache, so a multi-GB model is read once, and an edited one (even at the same path) changes
+  the key.
 * LPIPS weights: steps with an ``lpips_net``/``lpips_nets`` param get the hash of those nets' safetensors
   files in ``$GO_PIPELINE_CACHE/lpips`` (``absent`` when not fetched: fetching them later reruns the step).
 """
@@ -38,7 +39,13 @@ def dependency_versions() -> dict[str, str]:
 
 
 def is_model_param(name: str, value: Any) -> bool:
-    return isinstance(value, str) and bool(value.strip()) and name.endswith(MODEL_PARAM_SUFFIXES)
+    """A set ``*_path`` param, or a ``*_model`` param whose value is spelled as a path (``mask.onnx_model``
+    is a file; ``repair.compact_model: realesr-animevideov3-x4`` is a name, left to its step)."""
+    if not isinstance(value, str) or not value.strip():
+        return False
+    if name.endswith("_path"):
+        return True
+    return name.endswith("_model") and ("/" in value or os.sep in value or bool(Path(value).suffix))
 
 
 def path_hash(path: Path, cache: FileHashCache | None) -> str:
