@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from test_runner_toy import make_toy_project
+from _runner_toy import make_toy_project
 
 from go_core.errors import PipelineError
 from go_pipeline.runner import pipeline_status, run_pipeline
