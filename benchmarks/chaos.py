@@ -175,16 +175,19 @@ def main() -> int:
         shutil.rmtree(scene, ignore_errors=True)
         shutil.copytree(example_scene_path(), scene)
         events = []
+        remaining = ref_wall  # what is left of the run, roughly: a resumed run skips what is done
         for _ in range(opts.kills_per_trial):
             if landed >= opts.kills:
                 break
-            # a random moment: each resumed run skips what is done, so the kills of a trial share the run
-            delay = rng.uniform(0.5, 1.5 * ref_wall / opts.kills_per_trial)
+            delay = rng.uniform(0.5, max(0.8 * remaining, 2.0))  # a random moment of what is left
             event = kill_once(scene, args, delay, modes[landed % 2])
             events.append(event)
-            landed += bool(event.get("landed"))
             print(f"trial {len(trials)}: {event}", flush=True)
-        code, wall, err = run_to_end(scene, args, timeout=3600)
+            if not event.get("landed"):
+                break  # the run finished before the kill: this trial is done
+            landed += 1
+            remaining = max(remaining - 0.7 * delay, 2.0)
+        code, wall, err = run_to_end(scene, args, timeout=3600)  # resume to the end (a no-op if done)
         files = artifact_files(scene / ".go") if code == 0 else {}
         differ = sorted(k for k in set(reference) | set(files) if reference.get(k) != files.get(k))
         trial = {
