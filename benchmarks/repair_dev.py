@@ -38,6 +38,16 @@ def _manifest(artifact_dir: Path) -> dict:
     return json.loads(path.read_text()) if path.exists() else {}
 
 
+def loo_pair_psnr(loo_dir: Path) -> float:
+    """Mean PSNR of the leave-one-out renders against their left-out photo (on white): how degraded the
+    tuning pairs are, to compare with the coarse model's own test-view PSNR."""
+    with np.load(Path(loo_dir) / "loo_pairs.npz") as data:
+        arrays = {k: data[k].astype(np.float64) / 255.0 for k in data.files}
+    pairs = json.loads((Path(loo_dir) / "loo.json").read_text())["pairs"]
+    mse = [np.mean((arrays[p["degraded"]] - arrays[p["clean"]]) ** 2) for p in pairs]
+    return float(np.mean([-10.0 * np.log10(max(m, 1e-12)) for m in mse]))
+
+
 def _sheet(scene_dir: Path, coarse_eval: Path, full_eval: Path, out: Path, views: int, workdir: Path) -> None:
     """Truth / coarse / repaired rows for the first ``views`` test views (renders made again, white bg)."""
     import torch
@@ -130,6 +140,7 @@ def main() -> None:
                     m = _manifest(summary.step(step).artifact_dir)
                     entry["steps"][step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
                 entry["lora"] = summary.step("lora").record
+                entry["loo_pair_psnr"] = loo_pair_psnr(summary.step("loo").artifact_dir)
                 entry["repair"] = {
                     k: v for k, v in summary.step("repair").record.items() if k != "l_rep_last"
                 }
