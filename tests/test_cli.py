@@ -197,7 +197,8 @@ def test_run_example_end_to_end(tmp_path, toy):
     plain = toy.cli("run", str(scene))
     assert "everything is up to date" in plain.stderr and "running" not in plain.stderr
     # findable results: the model and its metrics, the paths, the next command
-    assert done.stdout.startswith("result: the coarse model") and "test views: PSNR " in done.stdout
+    assert "\nresult: the repair model" in "\n" + done.stdout and "test views: PSNR " in done.stdout
+    assert "compact:realesr-animevideov3-x4 (fine-tuned)" in done.stdout  # the repair model that ran
     for name in ("model.ply", "turntable.gif", "camera_path.mp4", "metrics.json", "report.html"):
         assert (scene / ".go" / "outputs" / name).is_file(), name
     assert "next: " in plain.stdout
