@@ -57,6 +57,10 @@ VARIANTS = {
     "mask10": {"init": "hull", "params": {"lambda_mask": 0.1}},
     "aniso": {"init": "hull", "params": {"lambda_anisotropy": 0.01}},
     "opacity": {"init": "hull", "params": {"lambda_opacity": 0.01}},
+    "drop4": {"init": "hull", "params": {"drop_gamma": 0.4}},
+    "opacity5": {"init": "hull", "params": {"lambda_opacity": 0.05}},
+    "sh0": {"init": "hull", "params": {"sh_degree": 0}},
+    "sh1": {"init": "hull", "params": {"sh_degree": 1}},
     "no_drop": {"init": "hull", "params": {"drop_gamma": 0.0}},
     "no_outside": {"init": "hull", "params": {"lambda_outside": 0.0}},
     "no_aniso": {"init": "hull", "params": {"lambda_anisotropy": 0.0}},
@@ -191,6 +195,7 @@ def summarise(result: dict) -> dict:
         result["target_hull_plus_5db_met"] = bool(min(margins) >= 5.0)
     if code_vs_paper:
         result["mean_code_minus_paper_floater_schedule_db"] = round(float(np.mean(code_vs_paper)), 3)
+    result["dev_means"] = dev_means(result)
     return result
 
 
@@ -205,6 +210,46 @@ def merge(paths: list[Path], out: Path) -> dict:
     result = summarise(result)
     out.write_text(json.dumps(result, indent=2, sort_keys=True))
     return result
+
+
+def dev_means(result: dict) -> dict[str, dict[str, float]]:
+    """Per variant, the mean over the scenes that ran it of PSNR, SSIM, LPIPS*, Gaussians and CPU seconds."""
+    keys = ("psnr", "ssim", "lpips_star", "gaussians", "coarse_cpu_s")
+    runs: dict[str, list[dict]] = {}
+    for scene in result["scenes"].values():
+        for variant, r in scene.items():
+            if isinstance(r, dict) and "psnr" in r:
+                runs.setdefault(variant, []).append(r)
+    return {
+        v: {
+            "scenes": len(rs),
+            **{k: float(np.mean([r[k] for r in rs])) for k in keys if all(k in r for r in rs)},
+        }
+        for v, rs in runs.items()
+    }
+
+
+def markdown_table(result: dict) -> str:
+    """Per scene and variant: PSNR / SSIM / LPIPS* / Gaussians / coarse CPU s, then the dev means."""
+    lines = [
+        "| scene | variant | PSNR | SSIM | LPIPS* | Gaussians | CPU s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+
+    def row(scene: str, variant: str, r: dict) -> str:
+        lp = f"{r['lpips_star']:.2f}" if "lpips_star" in r else "–"
+        return (
+            f"| {scene} | {variant} | {r['psnr']:.2f} | {r['ssim']:.4f} | {lp} | {r['gaussians']:.0f} "
+            f"| {r['coarse_cpu_s']:.0f} |"
+        )
+
+    for name, scene in sorted(result["scenes"].items()):
+        for variant, r in scene.items():
+            if isinstance(r, dict) and "psnr" in r:
+                lines.append(row(name, variant, r))
+    for variant, m in dev_means(result).items():
+        lines.append(row(f"**mean ({m['scenes']})**", variant, m))
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -231,7 +276,11 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/coarse_dev.json"))
     ap.add_argument("--merge", nargs="*", type=Path, default=None, help="merge these result files into --out")
+    ap.add_argument("--table", type=Path, default=None, help="print a result file as a markdown table")
     args = ap.parse_args(argv)
+    if args.table:
+        print(markdown_table(json.loads(args.table.read_text())))
+        return 0
     if args.merge:
         res = merge(args.merge, args.out)
         print(json.dumps({k: v for k, v in res.items() if k != "scenes"}, indent=2))
