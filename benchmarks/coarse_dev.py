@@ -142,8 +142,9 @@ def run_variant(
     seed: int,
     extra: dict,
     random_points: int = 20_000,
-    profile: str | None = None,
+    base: dict | None = None,
 ) -> dict:
+    """One variant on one scene; ``base`` the coarse params (default: pipeline.yaml's defaults)."""
     spec = variant_spec(name)
     cams = scene.train_cameras
     masks = [v.mask for v in scene.train]
@@ -159,7 +160,12 @@ def run_variant(
         pts, cols = random_init(lo, hi, random_points, seed=seed)
     init = points_to_gaussians(pts, cols, opacity=0.1)
     t_init = time.process_time() - t0
-    params = {**coarse_params(profile, iterations), **spec["params"], **extra}
+    params = {
+        **(base or coarse_params(None, iterations)),
+        "iterations": iterations,
+        **spec["params"],
+        **extra,
+    }
     config = step_params("go_pipeline.steps.coarse", params).scaled_schedule()
     views = [TrainView.from_arrays(v.camera, v.image, m) for v, m in zip(scene.train, masks, strict=True)]
     t1, w1 = time.process_time(), time.perf_counter()
@@ -305,14 +311,14 @@ def main(argv=None) -> int:
         "machine": platform.processor() or platform.machine(),
         "scenes": {},
     }
+    # read once: edits to pipeline.yaml while the benchmark runs don't leak into its later runs
+    base = coarse_params(args.profile, args.iterations)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     for name in scenes:
         scene = load_scene(args.data / name, max_size=args.max_size)
         result["scenes"][name] = {"resolution": [scene.train[0].camera.width, scene.train[0].camera.height]}
         for variant in args.variants:
-            r = run_variant(
-                scene, variant, args.iterations, args.seed, extra, args.random_points, args.profile
-            )
+            r = run_variant(scene, variant, args.iterations, args.seed, extra, args.random_points, base)
             result["scenes"][name][variant] = r
             print(
                 f"{name:14s} {variant:12s} PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  "
