@@ -109,7 +109,8 @@ def test_parallel_workers_give_the_same_artifacts(done, tmp_path):
 def test_compressed_schedule_scales_every_step_schedule_to_phase_one():
     from go_core.training import CoarseConfig
 
-    base = CoarseConfig()  # 10 000 its: densify 500..6000 every 100, reset 1000, floaters 500..6000 every 500
+    # 10 000 its: densify 500..6000 every 100, reset 1000, floaters 500..6000 every 500
+    base = CoarseConfig(iterations=10_000)
     c = base.compressed(1000)
     assert c.iterations == 1000 and c.sh_increase_every == 100 and c.position_lr_max_steps == 3000
     assert (c.densify_from, c.densify_until, c.densify_every, c.opacity_reset_every) == (50, 600, 10, 100)
