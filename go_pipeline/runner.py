@@ -427,13 +427,15 @@ def _run_one(
         display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
         return StepResult(name, status, key, final, True, 0.0, record)
 
-    from go_pipeline.skipping import cascade_skip, short_reason, write_skipped_outputs
+    from go_pipeline.skipping import cascade_skip, param_skip, short_reason, write_skipped_outputs
 
     display.open_log()
     if _verify_inputs(plan, spec, scene_hash, done, display, lock_fd, device, in_process):
         # an upstream was damaged and recomputed: its content (so this key) may differ
         return _run_one(plan, name, forced, scene_hash, done, display, lock_fd, device, in_process)
-    skip = cascade_skip(_module_file(spec), spec.inputs, done)
+    skip = cascade_skip(_module_file(spec), spec.inputs, done) or param_skip(
+        _module_file(spec), plan.params[name]
+    )
     if skip is None:
         display.log.info(f"  {name:<12} running  {key[:12]} ...")
     tmp = store.artifacts_root(plan.workdir, name) / f"{store.TMP_PREFIX}{key[:16]}-{os.getpid()}"
@@ -548,9 +550,7 @@ def _run_one(
     return StepResult(name, status, key, final, False, result.wall_s, result.records)
 
 
-def _check_artifact(
-    artifact: Path, spec: StepSpec, full: bool
-) -> tuple[dict[str, Any] | None, str | None]:
+def _check_artifact(artifact: Path, spec: StepSpec, full: bool) -> tuple[dict[str, Any] | None, str | None]:
     """(manifest, None) for a usable artifact; (None, problem) for a damaged one (unreadable manifest,
     a file missing or of the wrong size, with ``full`` a wrong sha256); (None, None) when there is none."""
     if not store.is_complete(artifact):

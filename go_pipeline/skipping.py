@@ -19,25 +19,49 @@ from typing import Any
 from go_core.errors import PipelineError
 
 DECLARATION = "SKIP_IF_SKIPPED"
+PARAM_DECLARATION = "SKIP_IF_EMPTY"  # {"param": "reason"}: skipped when that param is empty
 EMPTY_NPZ = b"PK\x05\x06" + b"\x00" * 18  # a zip archive without members: np.load gives an empty NpzFile
 
 
-@lru_cache(maxsize=64)
-def skip_if_skipped(module_file: str) -> tuple[str, ...]:
-    """The input names a step module declares in ``SKIP_IF_SKIPPED`` (empty when it declares none)."""
+@lru_cache(maxsize=128)
+def _declared(module_file: str, name: str) -> Any:
+    """The literal value a step module assigns to ``name`` at its top level (None when it does not)."""
     tree = ast.parse(Path(module_file).read_text(encoding="utf-8"), filename=module_file)
     for node in tree.body:
         if isinstance(node, ast.Assign) and any(
-            isinstance(t, ast.Name) and t.id == DECLARATION for t in node.targets
+            isinstance(t, ast.Name) and t.id == name for t in node.targets
         ):
             try:
-                value = ast.literal_eval(node.value)
+                return ast.literal_eval(node.value)
             except ValueError:
-                value = None
-            if not isinstance(value, tuple) or not all(isinstance(v, str) for v in value):
-                raise PipelineError(f"{DECLARATION} must be a tuple of input names", module_file)
-            return value
-    return ()
+                raise PipelineError(f"{name} must be a literal", module_file) from None
+    return None
+
+
+def skip_if_skipped(module_file: str) -> tuple[str, ...]:
+    """The input names a step module declares in ``SKIP_IF_SKIPPED`` (empty when it declares none)."""
+    value = _declared(module_file, DECLARATION)
+    if value is None:
+        return ()
+    if not isinstance(value, tuple) or not all(isinstance(v, str) for v in value):
+        raise PipelineError(f"{DECLARATION} must be a tuple of input names", module_file)
+    return value
+
+
+def param_skip(module_file: str, params: dict[str, Any]) -> dict[str, str] | None:
+    """The record of a runner-decided skip when a param the module names in ``SKIP_IF_EMPTY`` is empty
+    (e.g. the depth step without a depth model), else None."""
+    value = _declared(module_file, PARAM_DECLARATION)
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not all(
+        isinstance(k, str) and isinstance(v, str) for k, v in value.items()
+    ):
+        raise PipelineError(f"{PARAM_DECLARATION} must map param names to reasons", module_file)
+    for param, reason in value.items():
+        if not params.get(param):
+            return {"status": "skipped", "reason": reason, "worker": "none (skipped by the runner)"}
+    return None
 
 
 def short_reason(reason: str) -> str:

@@ -15,11 +15,15 @@ from go_core.scene.artifact import load_scene_artifact
 if TYPE_CHECKING:
     from go_pipeline.steps.params import DepthParams
 
+# without a model the runner skips this step without a worker (go_pipeline/skipping.py): a skipped depth.json
+# and an empty depth.npz, as the branch below writes when the step is called directly
+SKIP_IF_EMPTY = {"model_path": "no depth model configured (depth.model_path is empty): the depth loss is off"}
+
 
 def run(ctx, inputs: dict[str, Path], params: DepthParams) -> None:
     model_path = params.model_path
     if not model_path:
-        reason = "no depth model configured (depth.model_path is empty): the depth loss is off"
+        reason = SKIP_IF_EMPTY["model_path"]
         save_depth_priors(ctx.out_dir, [])
         art.write_json(ctx.out_dir, art.DEPTH_INFO, {"status": "skipped", "reason": reason, "views": 0})
         ctx.record(status="skipped", reason=reason)

@@ -139,3 +139,40 @@ def test_runner_skips_without_a_worker(toy, monkeypatch):
     # (the skip follows the upstream's record; its output must differ too, as weights.json does)
     summary = run_pipeline(toy.scene, pipeline_path=toy.pipeline, overrides={"side.label": "x"}, quiet=True)
     assert summary.step("after").status == "ran" and "after" in started
+
+
+def test_runner_skips_on_an_empty_param_without_a_worker(toy, monkeypatch):
+    """SKIP_IF_EMPTY = {param: reason}: the step is skipped by the runner while that param is empty."""
+    from go_pipeline import executor
+    from go_pipeline.runner import run_pipeline
+
+    toy.step_file("after").write_text(
+        AFTER.replace('SKIP_IF_SKIPPED = ("s",)', 'SKIP_IF_EMPTY = {"model": "no model configured"}')
+    )
+    toy.pipeline.write_text(
+        toy.pipeline.read_text().replace(
+            "profiles:",
+            f"  after:\n    function: {toy.pkg}.after:run\n    inputs: {{s: side}}\n"
+            "    outputs: [after.json, after.npz]\n    params: {model: ''}\nprofiles:",
+        )
+    )
+    started = []
+    real = executor.execute
+    monkeypatch.setattr(
+        executor, "execute", lambda job, *a, **k: started.append(job["step"]) or real(job, *a, **k)
+    )
+    summary = run_pipeline(toy.scene, pipeline_path=toy.pipeline, quiet=True)
+    assert summary.step("after").status == "skipped" and "after" not in started
+    assert summary.step("after").record["reason"] == "no model configured"
+    summary = run_pipeline(toy.scene, pipeline_path=toy.pipeline, overrides={"after.model": "m"}, quiet=True)
+    assert summary.step("after").status == "ran" and "after" in started
+
+
+def test_depth_step_declares_its_runner_skip():
+    from go_pipeline.steps import depth
+
+    from go_pipeline.skipping import param_skip
+
+    record = param_skip(depth.__file__, {"model_path": ""})
+    assert record["status"] == "skipped" and record["reason"] == depth.SKIP_IF_EMPTY["model_path"]
+    assert param_skip(depth.__file__, {"model_path": "/models/dpt"}) is None
