@@ -39,7 +39,14 @@ def free_port() -> int:
 
 
 def ray_cli() -> str:
-    return str(Path(sys.executable).with_name("ray"))
+    """The `ray` command of this interpreter's Ray (a venv with system site packages has none of its own)."""
+    import ray
+
+    beside = Path(sys.executable).with_name("ray")
+    if beside.is_file():
+        return str(beside)
+    found = shutil.which("ray") or str(Path(ray.__file__).parents[3] / "bin" / "ray")
+    return found
 
 
 def start_node(args: list[str], env: dict[str, str], log: Path) -> subprocess.Popen:
