@@ -29,7 +29,9 @@ Precision = Literal["auto", "bf16", "fp16", "fp32"]
 @dataclass
 class SceneParams:
     views: int = setting(0, ge=0, doc="0: the scene's own training split; N: choose N training views")
-    max_size: int = setting(0, ge=0, doc="downscale so the longest image side is at most this (0: keep)")
+    max_size: int = setting(
+        1600, ge=0, doc="downscale (with a warning) so the longest image side is at most this (0: keep)"
+    )
 
 
 @dataclass
