@@ -64,10 +64,10 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     from safetensors.torch import save_file
 
     from go_core.compact.restorer import CompactRestorer
-    from go_core.compact.tuning import CompactTuneSettings, held_out_loss, pair_tensors, tune_compact
+    from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
     from go_core.io.atomic import atomic_write
     from go_core.repair.data import training_views
-    from go_core.repair.pairs import LooPairs
+    from go_core.repair.pairs import LooPairs, pair_tensors
 
     info = compact_info(inputs)
     model = CompactRestorer.load(info["name"])  # missing or corrupt weights: one MissingWeightsError

@@ -21,9 +21,7 @@ import torch
 import torch.nn.functional as F
 
 from go_core.compact.restorer import CompactRestorer
-from go_core.diffusion.frame import Frame
-from go_core.repair.data import hwc_to_bchw
-from go_core.repair.pairs import Pair
+from go_core.repair.pairs import Pair, pair_tensors
 from go_core.seeding import numpy_rng, torch_generator
 
 CKPT_FORMAT = "compact-tune-1"
@@ -41,16 +39,6 @@ class CompactTuneSettings:
     def fingerprint(self, extra: str = "") -> str:
         blob = json.dumps({"s": asdict(self), "x": extra}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
-
-
-def pair_tensors(pair: Pair, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(degraded, clean) [1, 3, r, r] in the clean view's square frame."""
-    h, w = pair.clean.shape[:2]
-    frame = Frame.choose(h, w, pair.mask)
-    return (
-        frame.to_square(hwc_to_bchw(pair.degraded), resolution),
-        frame.to_square(hwc_to_bchw(pair.clean), resolution),
-    )
 
 
 def pair_loss(model: CompactRestorer, degraded: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from go_core.diffusion.frame import Frame
 from go_core.gaussians import Gaussians
-from go_core.repair.data import from_uint8, on_white, render_rgb_alpha
+from go_core.repair.data import from_uint8, hwc_to_bchw, on_white, render_rgb_alpha
 from go_core.repair.noise import NoiseStats, PairSchedule, add_noise
 
 
@@ -27,6 +28,16 @@ class Pair:
     mask: torch.Tensor  # [H, W] object mask of the clean view (for framing)
     kind: str  # "noise" | "loo"
     view: int
+
+
+def pair_tensors(pair: Pair, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(degraded, clean) [1, 3, r, r] in the clean view's square frame (what either repair model tunes on)."""
+    h, w = pair.clean.shape[:2]
+    frame = Frame.choose(h, w, pair.mask)
+    return (
+        frame.to_square(hwc_to_bchw(pair.degraded), resolution),
+        frame.to_square(hwc_to_bchw(pair.clean), resolution),
+    )
 
 
 def noise_pair(

@@ -17,11 +17,9 @@ from pathlib import Path
 
 import torch
 
-from go_core.diffusion.frame import Frame
 from go_core.diffusion.lora import LoraSpec, load_lora_state_dict, lora_parameters, lora_state_dict
 from go_core.diffusion.sampler import RepairDiffusion
-from go_core.repair.data import hwc_to_bchw
-from go_core.repair.pairs import PairSource
+from go_core.repair.pairs import PairSource, pair_tensors
 from go_core.seeding import numpy_rng, torch_generator
 
 CKPT_FORMAT = 1
@@ -102,10 +100,7 @@ def tune(
     for step in range(start + 1, settings.steps + 1):
         pair = source.draw(rng, gen)
         counts[pair.kind] += 1
-        h, w = pair.clean.shape[:2]
-        frame = Frame.choose(h, w, pair.mask)
-        deg = frame.to_square(hwc_to_bchw(pair.degraded), settings.resolution)
-        clean = frame.to_square(hwc_to_bchw(pair.clean), settings.resolution)
+        deg, clean = pair_tensors(pair, settings.resolution)
         loss = diffusion.tuning_loss(deg, clean, gen)
         opt.zero_grad(set_to_none=True)
         loss.backward()
