@@ -4,6 +4,7 @@ rebuild is booked as build time (never as a step's), and the user is told before
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -65,8 +66,9 @@ def test_one_pinned_ninja_builds():
         found = subprocess.run(["ninja", "--version"], capture_output=True, text=True).stdout
         assert found == out  # torch's `ninja` is this one during the build
     assert os.environ["PATH"] == path_before
-    # another ninja version is another build folder (ninja versions record builds differently)
-    assert "ninja" in (REPO / "pyproject.toml").read_text()
+    # one build tool: pyproject pins ninja exactly, and the installed one is that version
+    pins = re.findall(r'"(ninja\b[^"]*)"', (REPO / "pyproject.toml").read_text())
+    assert pins == [f"ninja=={metadata.version('ninja')}"], pins
 
 
 def test_rebuild_counts_as_build_time_and_is_announced(monkeypatch, tmp_path, capsys):
