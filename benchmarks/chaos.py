@@ -118,7 +118,7 @@ def summarize(opts, ref_wall: float, reference: dict, trials: list, cpu0) -> dic
         "profile": opts.profile,
         "overrides": opts.sets,
         "cpu": cpu_name(),
-        "note": "2 CPU cores shared with five other developers' jobs: wall times are inflated",
+        "note": opts.note,
         "reference_wall_s": round(ref_wall, 1),
         "reference_files": len(reference),
         "kills_landed": len(events),
@@ -146,6 +146,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0, help="seed of the kill schedule")
     ap.add_argument("--root", type=Path, help="work folder (default: a temp dir, removed)")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--note", default="", help="what else ran on the machine (recorded in the JSON)")
     opts = ap.parse_args()
 
     from go_pipeline.resources import example_scene_path
