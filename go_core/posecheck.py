@@ -110,8 +110,18 @@ LEARNED_MIN_THRESHOLD_PX = 1.5
 DEFAULT_MATCHER = "sift"
 
 
+def _verification(seed: int):
+    """COLMAP's two-view geometry options with RANSAC drawing from ``seed`` (an option, never the global
+    PRNG: pycolmap.set_random_seed would reseed the whole process)."""
+    import pycolmap
+
+    options = pycolmap.TwoViewGeometryOptions()
+    options.ransac.random_seed = int(seed)
+    return options
+
+
 def _sift_into_database(
-    views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model
+    views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model, seed
 ):
     """pycolmap SIFT extraction (inside the masks) and exhaustive matching into ``work/database.db``."""
     import pycolmap
@@ -139,11 +149,16 @@ def _sift_into_database(
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
     matching.use_gpu = False
-    pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+    pycolmap.match_exhaustive(
+        db_path,
+        matching_options=matching,
+        verification_options=_verification(seed),
+        device=pycolmap.Device.cpu,
+    )
 
 
 def _learned_into_database(
-    views, work, names, have_masks, max_features, num_threads, dilate_px, camera_model, pair_filter=None
+    views, work, names, have_masks, max_features, num_threads, dilate_px, camera_model, seed, pair_filter=None
 ):
     """DISK keypoints (inside the dilated masks) and LightGlue matches of every pair, written into
     ``work/database.db``; then pycolmap's two-view geometric verification, as for SIFT."""
@@ -199,8 +214,7 @@ def _learned_into_database(
     pairs_path = work / "pairs.txt"
     pairs_path.write_text("\n".join(pairs) + "\n")
     if pairs:
-        options = pycolmap.TwoViewGeometryOptions()  # RANSAC single-threaded, as COLMAP's matcher runs it
-        pycolmap.verify_matches(db_path, pairs_path, options=options)
+        pycolmap.verify_matches(db_path, pairs_path, options=_verification(seed))
 
 
 class _torch_threads:
@@ -232,6 +246,7 @@ def extract_and_match(
     camera_model: str | None = None,
     matcher: str = DEFAULT_MATCHER,
     pair_filter=None,
+    seed: int = 0,
 ) -> tuple[list[np.ndarray], dict[tuple[int, int], np.ndarray]]:
     """Features + exhaustive matching + geometric verification with pycolmap.
 
@@ -240,6 +255,7 @@ def extract_and_match(
     matched pair with COLMAP's two-view geometry. Returns per-view keypoint xy [N,2] (COLMAP pixel
     convention = ours: pixel centres at +0.5) and {(i, j): inlier match index pairs [M,2]} for i < j.
     ``pair_filter(i, j)``: the pairs the learned matcher runs on (default all; SIFT always matches all).
+    ``seed``: the RANSAC seed of the verification.
     """
     import pycolmap
 
@@ -249,7 +265,7 @@ def extract_and_match(
     _quiet(pycolmap)
     if matcher == "sift":
         _sift_into_database(
-            views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model
+            views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model, seed
         )
     else:
         _learned_into_database(
@@ -261,6 +277,7 @@ def extract_and_match(
             num_threads,
             dilate_px,
             camera_model,
+            seed,
             pair_filter,
         )
     db = pycolmap.Database.open(work / "database.db")
@@ -603,17 +620,16 @@ def reconstruct(
     Raises ``PoseCheckError`` when nothing can be reconstructed, saying why."""
     import pycolmap
 
-    pycolmap.set_random_seed(seed)
     with tempfile.TemporaryDirectory(prefix="go-sfm-", dir=workdir) as tmp:
         work = Path(tmp)
         _, matches = extract_and_match(
-            views, work, max_features, num_threads, camera_model="PINHOLE", matcher=matcher
+            views, work, max_features, num_threads, camera_model="PINHOLE", matcher=matcher, seed=seed
         )
         out = work / "sparse"
         out.mkdir()
         options = pycolmap.IncrementalPipelineOptions()
         options.num_threads = num_threads
-        options.random_seed = seed
+        options.random_seed = seed  # the mapper's own PRNG (options, not pycolmap.set_random_seed)
         recs = pycolmap.incremental_mapping(work / "database.db", work / "images", out, options=options)
     if not recs:
         masked = all(getattr(v, "mask", None) is not None for v in views)
