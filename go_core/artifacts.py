@@ -17,7 +17,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
+    import numpy as np
+
+    from go_core.camera import Camera
     from go_core.gaussians import Gaussians
+    from go_core.scene.types import Scene
 
 
 @dataclass(frozen=True)
@@ -78,6 +82,40 @@ def write_json(out_dir: str | Path, artifact: Artifact, data: dict[str, Any]) ->
     from go_core.io.atomic import atomic_write_json
 
     return atomic_write_json(artifact.path(out_dir), data)
+
+
+def read_scene(folder: str | Path) -> Scene:
+    """The ingested scene of the ``scene`` step's folder (float32 images and masks, OpenCV cameras)."""
+    from go_core.scene.artifact import load_scene_artifact
+
+    return load_scene_artifact(folder)
+
+
+def read_scene_cameras(folder: str | Path) -> tuple[list[Camera], list[Camera]]:
+    """(train, test) cameras of the ``scene`` step's folder, without reading any pixels."""
+    from go_core.scene.artifact import load_scene_cameras
+
+    return load_scene_cameras(folder)
+
+
+def write_scene(out_dir: str | Path, scene: Scene, views_requested: int = 0, max_size: int = 0) -> dict:
+    """``scene.json`` + ``views.npz`` for ``scene``; returns the manifest written."""
+    from go_core.scene.artifact import save_scene_artifact
+
+    return save_scene_artifact(scene, out_dir, views_requested=views_requested, max_size=max_size)
+
+
+def read_masks(folder: str | Path, count: int | None = None) -> list[np.ndarray]:
+    """The ``mask`` step's training masks in view order (``count``: the number expected, else an error)."""
+    from go_core.masking import load_masks
+
+    return load_masks(folder, count)
+
+
+def write_masks(out_dir: str | Path, masks: list[np.ndarray]) -> Path:
+    from go_core.masking import save_masks
+
+    return save_masks(out_dir, masks)
 
 
 def read_gaussians(folder: str | Path) -> Gaussians:

@@ -7,7 +7,7 @@ and that of every go_core module it imports are part of the cache key (go_pipeli
 * ``inputs`` maps the input names declared in pipeline.yaml to the upstream artifact folders (read-only);
   the special value ``"@scene"`` in pipeline.yaml passes the raw scene folder (only the ``scene`` ingest
   step uses it; downstream steps read the ingested scene from the ``scene`` step's artifact with
-  ``go_core.scene.artifact.load_scene_artifact``).
+  ``go_core.artifacts.read_scene``).
 * The step writes every output file into ``ctx.out_dir`` (a temp folder the runner renames atomically
   into place when ``run`` returns; an exception leaves nothing behind that looks complete).
 * Long steps save checkpoints into ``ctx.checkpoint_dir`` (persistent for this cache key across crashes;

@@ -16,8 +16,6 @@ from typing import TYPE_CHECKING
 from go_core import artifacts as art
 from go_core.depth_prior import load_depth_priors
 from go_core.io.curves import write_curves
-from go_core.masking import load_masks
-from go_core.scene.artifact import load_scene_artifact
 from go_core.seeding import torch_generator
 from go_core.training import CheckpointSpec, TrainView, optimize
 
@@ -27,8 +25,8 @@ if TYPE_CHECKING:
 
 def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     t0 = time.process_time()
-    scene = load_scene_artifact(inputs["scene"])
-    masks = load_masks(inputs["mask"], len(scene.train))
+    scene = art.read_scene(inputs["scene"])
+    masks = art.read_masks(inputs["mask"], len(scene.train))
     init = art.read_gaussians(inputs["hull"])
     depths = load_depth_priors(inputs["depth"]) if "depth" in inputs else None
     if depths is not None and len(depths) != len(scene.train):

@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.depth_prior import DepthEstimator, save_depth_priors
-from go_core.scene.artifact import load_scene_artifact
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import DepthParams
@@ -29,7 +28,7 @@ def run(ctx, inputs: dict[str, Path], params: DepthParams) -> None:
         ctx.record(status="skipped", reason=reason)
         return
     estimator = DepthEstimator(Path(model_path), device="cpu")
-    scene = load_scene_artifact(inputs["scene"])
+    scene = art.read_scene(inputs["scene"])
     maps = []
     bar = ctx.progress(len(scene.train), "depth prior")
     for v in scene.train:

@@ -116,9 +116,7 @@ def evaluate_scene(
 def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     from PIL import Image
 
-    from go_core.scene.artifact import load_scene_artifact
-
-    scene = load_scene_artifact(inputs["scene"])
+    scene = art.read_scene(inputs["scene"])
     if not scene.test:
         from go_core.errors import SceneError
 

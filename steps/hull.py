@@ -15,8 +15,6 @@ import numpy as np
 from go_core import artifacts as art
 from go_core.camera import look_at_point
 from go_core.hull import points_to_gaussians, random_init, visual_hull
-from go_core.masking import load_masks
-from go_core.scene.artifact import load_scene_artifact
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import HullParams
@@ -36,9 +34,9 @@ def random_box(cameras) -> tuple[np.ndarray, np.ndarray]:
 
 def run(ctx, inputs: dict[str, Path], params: HullParams) -> None:
     init = params.init
-    scene = load_scene_artifact(inputs["scene"])
+    scene = art.read_scene(inputs["scene"])
     cams = scene.train_cameras
-    masks = load_masks(inputs["mask"], len(cams))
+    masks = art.read_masks(inputs["mask"], len(cams))
     images = [v.image for v in scene.train]
     num, opacity = params.num_points, params.opacity
     info: dict = {"init": init}

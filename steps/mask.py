@@ -13,8 +13,7 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.errors import PipelineError, SceneError
-from go_core.masking import OnnxSegmenter, grabcut_mask, mask_stats, save_masks, validate_mask
-from go_core.scene.artifact import load_scene_artifact
+from go_core.masking import OnnxSegmenter, grabcut_mask, mask_stats, validate_mask
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import MaskParams
@@ -25,7 +24,7 @@ METHODS = ("auto", "provided", "grabcut", "onnx")
 def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
     method = params.method
     onnx_model = params.onnx_model
-    scene = load_scene_artifact(inputs["scene"])
+    scene = art.read_scene(inputs["scene"])
     views = scene.train
     have_all = all(v.mask is not None for v in views)
     if method == "auto":
@@ -54,7 +53,7 @@ def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
         info.append({"view": v.name, "method": method, **mask_stats(m)})
         bar.advance()
     bar.close()
-    save_masks(ctx.out_dir, masks)
+    art.write_masks(ctx.out_dir, masks)
     summary = {"method": method, "onnx_model": onnx_model if method == "onnx" else None, "views": info}
     art.write_json(ctx.out_dir, art.MASK_INFO, summary)
     ctx.record(method=method, views=len(masks), foreground=[i["foreground_fraction"] for i in info])

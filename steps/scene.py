@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from go_core import artifacts as art
 from go_core.errors import SceneError
-from go_core.scene.artifact import MANIFEST, save_scene_artifact
 from go_core.scene.loader import load_scene
 
 if TYPE_CHECKING:
@@ -18,12 +18,13 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
     """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""
     views, max_size = params.views, params.max_size
     scene = load_scene(inputs["folder"], views=views, max_size=max_size)
-    manifest = save_scene_artifact(scene, ctx.out_dir, views_requested=views, max_size=max_size)
+    manifest = art.write_scene(ctx.out_dir, scene, views_requested=views, max_size=max_size)
     from go_pipeline.manifest import schema_problems
 
     problems = schema_problems("scene_manifest", manifest)
     if problems:  # a bug, not bad input: the artifact must never be marked complete
-        raise SceneError(f"scene.json does not match scene_manifest.schema.json: {problems[0]}", MANIFEST)
+        path = art.SCENE_INFO.path(ctx.out_dir)
+        raise SceneError(f"does not match scene_manifest.schema.json: {problems[0]}", path)
     if 0 < max_size < scene.original_max_side:
         ctx.log.warning(
             "images up to %d px on their longest side were downscaled to %d px (scene.max_size; "

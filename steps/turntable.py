@@ -17,7 +17,6 @@ from go_core.gaussians import Gaussians
 from go_core.io.atomic import atomic_write
 from go_core.io.images import to_uint8
 from go_core.render import render_camera
-from go_core.scene.artifact import load_scene_cameras
 from go_core.trajectory import camera_path_cameras, contact_sheet, turntable_cameras
 
 if TYPE_CHECKING:
@@ -81,7 +80,7 @@ def run(ctx, inputs: dict[str, Path], params: TurntableParams) -> None:
 
     path_frames, max_size = params.path_frames, params.max_size
     g, source = final_model(inputs)
-    train_cams, _ = load_scene_cameras(inputs["scene"])
+    train_cams, _ = art.read_scene_cameras(inputs["scene"])
     cams = turntable_cameras(train_cams, params.frames, max_size)
     bg = torch.tensor(params.background, dtype=torch.float32)
     backend = params.backend

@@ -36,8 +36,8 @@ def test_same_bytes_across_processes(tmp_path):
         "import sys, torch\n"
         "from go_core.io.safetensors_file import write_safetensors\n"
         "g = torch.Generator().manual_seed(3)\n"
-        "t = {'z.weight': torch.randn(4, 3, 3, 3, generator=g), 'a.bias': torch.randn(5, generator=g).double(),"
-        " 'm.count': torch.arange(7, dtype=torch.int64)}\n"
+        "t = {'z.weight': torch.randn(4, 3, 3, 3, generator=g),"
+        " 'a.bias': torch.randn(5, generator=g).double(), 'm.count': torch.arange(7, dtype=torch.int64)}\n"
         f"write_safetensors(sys.argv[1], t, {META!r})\n"
     )
     outs = []

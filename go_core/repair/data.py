@@ -21,12 +21,14 @@ from go_core.io.images import composite, to_uint8  # noqa: F401  (to_uint8 re-ex
 def training_views(scene_dir: str | Path, mask_dir: str | Path | None = None):
     """(scene, [TrainView]) for the scene artifact's training views, each with its mask: the ``mask`` step's
     ``masks.npz`` when ``mask_dir`` is given, else the scene's own masks."""
-    from go_core.masking import load_masks
-    from go_core.scene.artifact import load_scene_artifact
+    from go_core import artifacts as art
     from go_core.training import TrainView
 
-    scene = load_scene_artifact(scene_dir)
-    masks = load_masks(mask_dir, len(scene.train)) if mask_dir is not None else [v.mask for v in scene.train]
+    scene = art.read_scene(scene_dir)
+    if mask_dir is not None:
+        masks = art.read_masks(mask_dir, len(scene.train))
+    else:
+        masks = [v.mask for v in scene.train]
     views = []
     for v, mask in zip(scene.train, masks, strict=True):
         if mask is None:
