@@ -156,9 +156,7 @@ def complete_artifacts(workdir: Path, step: str) -> list[Path]:
     root = artifacts_root(workdir, step)
     if not root.is_dir():
         return []
-    found = [
-        p for p in root.iterdir() if not p.name.startswith(".") and is_complete(p) and read_manifest(p)
-    ]
+    found = [p for p in root.iterdir() if not p.name.startswith(".") and is_complete(p) and read_manifest(p)]
     return sorted(found, key=lambda p: (p / MANIFEST).stat().st_mtime_ns, reverse=True)
 
 

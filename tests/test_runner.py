@@ -89,9 +89,7 @@ def test_cache_keys_stable_across_processes(toy, tmp_path):
     # and the key is exactly sha256 of the documented material
     m = store.load_manifest(store.artifact_dir(toy.scene / ".go", "double"))
     inputs = {"data": m["inputs"]["data"]["content_hash"]}
-    key = cache_key(
-        "double", "1", m["params"], 0, inputs, digest_of(m["code"]), m["function"], m["external"]
-    )
+    key = cache_key("double", "1", m["params"], 0, inputs, digest_of(m["code"]), m["function"], m["external"])
     assert key == m["key"]
     assert set(m["code"]) == {f"{toy.pkg}/__init__.py", f"{toy.pkg}/double.py"}
 
