@@ -1,8 +1,9 @@
 """The artifact catalog: every file a pipeline step writes, by name, with typed readers and writers.
 
-File names live here and only here (the step modules never spell one; the runner's declared outputs come
-from go_pipeline.catalog, which lists these per step). The folder formats of go_core (the ingested scene,
-masks, depth priors) take their names from here too. Torch-free to import: readers import what they need.
+File names are defined once, in go_core.artifact_files (a leaf module, so the folder formats of go_core,
+the ingested scene, masks and depth priors, take their names from it without an import cycle), and
+re-exported here; the step modules never spell one, and the runner's declared outputs come from
+go_pipeline.catalog, which lists these per step. Torch-free to import: readers import what they need.
 
     from go_core import artifacts as art
     g = art.read_gaussians(inputs["hull"])         # Gaussians from the hull step's folder
@@ -12,7 +13,6 @@ masks, depth priors) take their names from here too. Torch-free to import: reade
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -23,52 +23,8 @@ if TYPE_CHECKING:
     from go_core.gaussians import Gaussians
     from go_core.scene.types import Scene
 
-
-@dataclass(frozen=True)
-class Artifact:
-    """One file of a step's artifact folder."""
-
-    file: str
-    description: str
-
-    def path(self, folder: str | Path) -> Path:
-        return Path(folder) / self.file
-
-
-# The ingested scene (go_core.scene.artifact)
-SCENE_INFO = Artifact("scene.json", "the ingested scene: cameras, splits, image names")
-SCENE_VIEWS = Artifact("views.npz", "the ingested scene's images and masks, uint8")
-# Masks and depth priors (go_core.masking, go_core.depth_prior)
-MASKS = Artifact("masks.npz", "training masks, float32 [H,W] each (train_000, ...)")
-MASK_INFO = Artifact("mask.json", "the mask method and per-view statistics")
-DEPTH = Artifact("depth.npz", "monocular disparity priors (empty when the depth step skipped)")
-DEPTH_INFO = Artifact("depth.json", "the depth model used, or why the depth step skipped")
-# Gaussian sets (go_core.gaussians)
-GAUSSIANS = Artifact("gaussians.npz", "a set of 3D Gaussians")
-HULL_INFO = Artifact("hull.json", "the initialisation: point count, bounding box, volume")
-COARSE_INFO = Artifact("coarse.json", "coarse training: counts, settings, loss log")
-CURVES = Artifact("curves.csv", "training curves: loss, train PSNR, Gaussians per logged step")
-# The repair chain
-WEIGHTS_INFO = Artifact("weights.json", "the repair model's weights, or why they are missing")
-LOO_INFO = Artifact("loo.json", "leave-one-out runs, 3D-noise statistics, pair index")
-LOO_PAIRS = Artifact("loo_pairs.npz", "leave-one-out degraded / clean / mask images, uint8")
-NOISE_PAIRS_INFO = Artifact("noise_pairs.json", "noise-pair settings and statistics")
-NOISE_PAIRS_PREVIEW = Artifact("preview.png", "photo | render | noisy render for each training view")
-LORA_INFO = Artifact("lora.json", "LoRA tuning summary")
-LORA_WEIGHTS = Artifact("lora.safetensors", "the tuned LoRA tensors")
-COMPACT_WEIGHTS = Artifact("compact.safetensors", "the compact restorer fine-tuned on the scene")
-REPAIR_INFO = Artifact("repair.json", "repair summary; status ok means gaussians.npz is the repaired set")
-REPAIR_PREVIEW = Artifact("repair_preview.png", "render | repaired image of the last refresh's views")
-# Results
-POINT_CLOUD = Artifact("point_cloud.ply", "the final Gaussians in the 3DGS PLY layout")
-TURNTABLE = Artifact("turntable.gif", "frames on the ellipse of the training cameras")
-CONTACT_SHEET = Artifact("contact_sheet.png", "a few turntable frames side by side")
-CAMERA_PATH_VIDEO = Artifact("camera_path.mp4", "a video along a closed path through the training cameras")
-METRICS = Artifact("metrics.json", "test-view PSNR / SSIM / LPIPS (metrics schema)")
-TEST_GRID = Artifact("test_grid.png", "ground truth, render and error map of test views")
-
-STATUS_OK = "ok"
-STATUS_SKIPPED = "skipped"
+from go_core.artifact_files import *  # noqa: F403  (the names: one definition, re-exported)
+from go_core.artifact_files import GAUSSIANS, REPAIR_INFO, STATUS_OK, Artifact
 
 
 # Readers and writers --------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from go_core import artifacts
+from go_core import artifact_files as artifacts
 from go_core.errors import MissingWeightsError
 from go_core.io.images import to_uint8
 

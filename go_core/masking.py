@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from go_core import artifacts
+from go_core import artifact_files as artifacts
 from go_core.errors import MissingWeightsError, SceneError
 from go_core.io.images import to_uint8
 

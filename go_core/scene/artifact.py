@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from go_core import artifacts
+from go_core import artifact_files as artifacts
 from go_core.camera import Camera
 from go_core.errors import SceneError
 from go_core.io.atomic import atomic_write_json
