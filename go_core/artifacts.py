@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from go_core.scene.types import Scene
 
 from go_core.artifact_files import *  # noqa: F403  (the names: one definition, re-exported)
-from go_core.artifact_files import GAUSSIANS, REPAIR_INFO, STATUS_OK, Artifact
+from go_core.artifact_files import CAMERAS, GAUSSIANS, REPAIR_INFO, STATUS_OK, Artifact
 
 
 # Readers and writers --------------------------------------------------------------------------------------
@@ -72,6 +72,36 @@ def write_masks(out_dir: str | Path, masks: list[np.ndarray]) -> Path:
     from go_core.masking import save_masks
 
     return save_masks(out_dir, masks)
+
+
+def write_cameras(
+    out_dir: str | Path, cameras: list[Camera], corrections: list[list[float]] | None = None
+) -> Path:
+    """``cameras.json``: the training cameras a model was fitted with; ``corrections`` (per view
+    [ωx, ωy, ωz, τx, τy, τz], go_core.pose_refine) when refined, with each view's rotation change."""
+    import math
+
+    rows = []
+    for i, c in enumerate(cameras):
+        row = {
+            "name": c.name,
+            "width": int(c.width),
+            "height": int(c.height),
+            "K": [[float(x) for x in r] for r in c.K],
+            "world_to_cam": [[float(x) for x in r] for r in c.world_to_cam],
+        }
+        if corrections is not None:
+            row["correction"] = [float(x) for x in corrections[i]]
+            row["rotation_change_deg"] = math.degrees(math.sqrt(sum(x * x for x in corrections[i][:3])))
+        rows.append(row)
+    return write_json(out_dir, CAMERAS, {"refined": corrections is not None, "cameras": rows})
+
+
+def read_cameras(folder: str | Path) -> list[Camera]:
+    """The cameras of ``cameras.json``, in training-view order."""
+    from go_core.scene.artifact import camera_from_json
+
+    return [camera_from_json(c) for c in read_json(folder, CAMERAS)["cameras"]]
 
 
 def read_gaussians(folder: str | Path) -> Gaussians:

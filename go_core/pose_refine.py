@@ -4,11 +4,13 @@ A correction per view is a rotation ``exp([ω]×)`` and a translation ``τ`` app
 ``world_to_cam' = [exp([ω]×) | τ] · world_to_cam`` (ω, τ in the camera frame: a turn about the camera's own
 centre and a shift along its own axes), both zero at the start. ``PoseCorrection`` holds them for a set of
 views; views listed in ``fixed`` keep theirs at zero (the gauge of a joint optimisation with the scene).
-``refine_pose`` fits one camera to a photo with the model frozen (CF evaluation, and the building block
-for joint refinement in coarse).
+``refine_pose`` fits one camera to a photo with the model frozen (CF evaluation); ``JointPoses`` optimises
+the training views' corrections together with the Gaussians (``coarse.refine_poses``).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import torch
@@ -118,3 +120,77 @@ def refine_pose(
         opt.step()
         losses.append(float(loss.detach()))
     return corr.apply_to([camera])[0], losses
+
+
+class JointPoses:
+    """Pose corrections of the training views, optimised with the Gaussians (``coarse.refine_poses``).
+
+    View 0 is the gauge (its correction stays zero). Its own Adam: rotations at ``lr_rotation`` (radians),
+    translations at ``lr_translation`` × the cameras' mean distance from the world origin (so it behaves the
+    same at any scene scale), both cosine-decayed to ×0.1 from ``start`` to ``end``. Before ``start`` the
+    poses are used as given and no pose gradient is computed."""
+
+    def __init__(
+        self, cameras: list[Camera], lr_rotation: float, lr_translation: float, start: int, end: int
+    ) -> None:
+        self.cameras = list(cameras)
+        self.correction = PoseCorrection(len(cameras), fixed=(0,))
+        scale = float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
+        self.base_lrs = (float(lr_rotation), float(lr_translation) * scale)
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": [self.correction.rotation], "lr": self.base_lrs[0]},
+                {"params": [self.correction.translation], "lr": self.base_lrs[1]},
+            ]
+        )
+        self.start, self.end = int(start), int(end)
+        self.viewmats = torch.stack([c.viewmat_tensor() for c in cameras])  # [V,4,4] float32
+
+    def active(self, step: int) -> bool:
+        return step >= self.start
+
+    def viewmat(self, index: int, step: int) -> torch.Tensor:
+        """[1,4,4] corrected world-to-camera of view ``index`` (differentiable when active)."""
+        sel = slice(index, index + 1)
+        if self.active(step):
+            return self.correction(self.viewmats[sel], sel)
+        with torch.no_grad():
+            return self.correction(self.viewmats[sel], sel)
+
+    def step(self, step: int) -> None:
+        """Apply this iteration's pose gradient (after ``loss.backward()``)."""
+        if not self.active(step):
+            return
+        t = min(max((step - self.start) / max(self.end - self.start, 1), 0.0), 1.0)
+        decay = 0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * t))  # a Python float: checkpoints hold no numpy
+        for group, lr in zip(self.optimizer.param_groups, self.base_lrs, strict=True):
+            group["lr"] = lr * decay
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+
+    def corrections(self) -> list[list[float]]:
+        """Per view [ωx, ωy, ωz, τx, τy, τz] (camera frame; JSON-able)."""
+        with torch.no_grad():
+            c = self.correction
+            both = torch.cat([c.rotation, c.translation], 1) * c.free
+        return [[float(x) for x in row] for row in both.double()]
+
+    def refined_cameras(self) -> list[Camera]:
+        return self.correction.apply_to(self.cameras)
+
+    def state_dict(self) -> dict:
+        return {"correction": self.correction.state_dict(), "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.correction.load_state_dict(state["correction"])
+        self.optimizer.load_state_dict(state["optimizer"])
+
+
+def apply_corrections(cameras: list[Camera], corrections: list[list[float]]) -> list[Camera]:
+    """``cameras`` with the per-view corrections of ``JointPoses.corrections`` applied (float64)."""
+    corr = PoseCorrection(len(cameras), dtype=torch.float64)
+    values = torch.tensor(corrections, dtype=torch.float64).reshape(len(cameras), 6)
+    with torch.no_grad():
+        corr.rotation.copy_(values[:, :3])
+        corr.translation.copy_(values[:, 3:])
+    return corr.apply_to(cameras)

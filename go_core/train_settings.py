@@ -104,6 +104,18 @@ class RegularizerConfig:
     lambda_opacity: float = setting(0.01, ge=0, doc="opacity decay: mean opacity; 0: off")
 
 
+@dataclass
+class PoseRefineConfig:
+    """Joint pose refinement (go_core.pose_refine.JointPoses): a rotation + translation correction per
+    training view optimised with the Gaussians through the rasterizer's viewmat gradients. The first
+    training view is the gauge (kept as given). Off for posed scenes; on in ``--profile cf``."""
+
+    refine_poses: bool = setting(False, doc="optimise a pose correction per training view (first view fixed)")
+    pose_lr_rotation: float = setting(0.003, gt=0, doc="Adam lr of the rotations (rad), cosine-decayed x0.1")
+    pose_lr_translation: float = setting(0.003, gt=0, doc="Adam lr of the shifts, x the mean camera distance")
+    pose_refine_from: int = setting(500, ge=0, doc="first step with pose updates (the Gaussians form first)")
+
+
 # The budget knob: step-based schedules are written for ``schedule_iterations`` (the paper's 10 000) and
 # scaled by iterations / schedule_iterations (CoarseConfig.scaled_schedule): ``iterations`` sets the budget.
 SCHEDULE_PARAMS: tuple[str, ...] = (
@@ -116,11 +128,12 @@ SCHEDULE_PARAMS: tuple[str, ...] = (
     "floater_every",
     "floater_from",
     "floater_until",
+    "pose_refine_from",
 )
 
 
 @dataclass
-class CoarseConfig(RegularizerConfig, FloaterConfig, DensifyConfig, LearningRates):
+class CoarseConfig(PoseRefineConfig, RegularizerConfig, FloaterConfig, DensifyConfig, LearningRates):
     """Coarse 3DGS settings: the paper's / the authors' code's, except the budget (2000 scaled iterations)
     and the two regularisers measured better (DropGaussian, opacity decay; docs/coarse.md). The paper's:
     ``--profile paper``."""

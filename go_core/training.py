@@ -91,6 +91,7 @@ class TrainStats:
     densify: dict[str, int] = field(default_factory=dict)
     loss_log: list[dict] = field(default_factory=list)
     depth_loss_used: bool = False
+    pose_corrections: list[list[float]] | None = None  # refine_poses: per view [ωx,ωy,ωz,τx,τy,τz]
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -110,20 +111,23 @@ def _render(
     background: torch.Tensor,
     backend: str,
     opacity_scale: torch.Tensor | None = None,
+    viewmat: torch.Tensor | None = None,
 ):
-    """Render one training view; ``opacity_scale`` [N] multiplies the activated opacities (DropGaussian)."""
+    """Render one training view; ``opacity_scale`` [N] multiplies the activated opacities (DropGaussian);
+    ``viewmat`` [1,4,4] replaces the camera's pose (joint pose refinement)."""
     from go_core.render import render, render_camera
 
-    if opacity_scale is None:
+    if opacity_scale is None and viewmat is None:
         return render_camera(gaussians, cam, sh_degree=sh_degree, background=background, backend=backend)
     g = gaussians
+    opacities = g.opacities() if opacity_scale is None else g.opacities() * opacity_scale
     return render(
         g.means,
         g.quats,
         g.scales(),
-        g.opacities() * opacity_scale,
+        opacities,
         g.sh,
-        cam.viewmat_tensor(device=g.means.device)[None],
+        cam.viewmat_tensor(device=g.means.device)[None] if viewmat is None else viewmat,
         cam.K_tensor(device=g.means.device)[None],
         cam.width,
         cam.height,
@@ -261,6 +265,12 @@ def optimize(
         strategy = DensifyStrategy(config, extent, len(opt))
     stats = TrainStats(initial_count=len(g0), max_count=len(g0))
     stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
+    poses = None
+    if config.refine_poses:
+        from go_core.pose_refine import JointPoses
+
+        cams, lrs = [v.camera for v in views], (config.pose_lr_rotation, config.pose_lr_translation)
+        poses = JointPoses(cams, *lrs, config.pose_refine_from, config.iterations)
     order: list[int] = []
     start = 0
     fingerprint = hashlib.sha256(
@@ -278,6 +288,8 @@ def optimize(
             saved = payload["stats"]
             stats = TrainStats(**saved)
             stats.resumed_from = start
+            if poses is not None:
+                poses.load_state_dict(payload["poses"])
 
     fixed_bg = torch.tensor(config.background, dtype=torch.float32)
     with _cyclic_gc_paused() as gc_tick:
@@ -296,7 +308,8 @@ def optimize(
             g = opt.gaussians()
             rate = drop_rate(step, config.iterations, config.drop_gamma)
             keep_scale = drop_compensation(len(g), rate, generator)
-            out = _render(g, view.camera, active_sh, bg, config.backend, keep_scale)
+            viewmat = poses.viewmat(index, step) if poses is not None else None
+            out = _render(g, view.camera, active_sh, bg, config.backend, keep_scale, viewmat)
             strategy.pre_backward(step, out)
             loss, parts = view_loss(out, view, bg, config, step)
             reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask)
@@ -311,6 +324,8 @@ def optimize(
             loss.backward()
             strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
             opt.step()
+            if poses is not None:
+                poses.step(step)
             changed = strategy.after_step(step, opt, generator)
             if config.floater_due(step):
                 lam = config.floater_lambda_at(step)
@@ -351,6 +366,8 @@ def optimize(
             ):
                 stats.densify = dict(strategy.counts)
                 stats.final_count = len(opt)
+                if poses is not None:
+                    stats.pose_corrections = poses.corrections()
                 _save_checkpoint(
                     checkpoint,
                     {
@@ -362,11 +379,14 @@ def optimize(
                         "rng": _rng_state(generator),
                         "order": list(order),
                         "stats": stats.to_dict(),
+                        **({"poses": poses.state_dict()} if poses is not None else {}),
                     },
                     step,
                 )
     stats.final_count = len(opt)
     stats.densify = dict(strategy.counts)
+    if poses is not None:
+        stats.pose_corrections = poses.corrections()
     if not math.isfinite(float(opt.params["means"].detach().sum())):
         raise FloatingPointError("coarse optimisation diverged (non-finite Gaussian positions)")
     return opt.snapshot(), stats

@@ -14,7 +14,7 @@ STEP_OUTPUTS: dict[str, tuple[art.Artifact, ...]] = {
     "go_pipeline.steps.mask": (art.MASKS, art.MASK_INFO),
     "go_pipeline.steps.depth": (art.DEPTH_INFO, art.DEPTH),
     "go_pipeline.steps.hull": (art.GAUSSIANS, art.HULL_INFO),
-    "go_pipeline.steps.coarse": (art.GAUSSIANS, art.COARSE_INFO, art.CURVES),
+    "go_pipeline.steps.coarse": (art.GAUSSIANS, art.COARSE_INFO, art.CURVES, art.CAMERAS),
     "go_pipeline.steps.weights": (art.WEIGHTS_INFO,),
     "go_pipeline.steps.loo": (art.LOO_INFO, art.LOO_PAIRS),
     "go_pipeline.steps.noise_pairs": (art.NOISE_PAIRS_INFO,),

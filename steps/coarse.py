@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from go_core import artifacts as art
 from go_core.depth_prior import load_depth_priors
 from go_core.io.curves import write_curves
+from go_core.pose_refine import apply_corrections
 from go_core.seeding import torch_generator
 from go_core.training import CheckpointSpec, TrainView, optimize
 
@@ -52,6 +53,10 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
         state["bar"].close()
     art.write_gaussians(ctx.out_dir, gaussians)
     write_curves(art.CURVES.path(ctx.out_dir), stats.loss_log)  # loss, train PSNR, Gaussians per logged step
+    cameras = [v.camera for v in views]
+    if stats.pose_corrections is not None:  # coarse.refine_poses: the cameras the Gaussians were fitted with
+        cameras = apply_corrections(cameras, stats.pose_corrections)
+    art.write_cameras(ctx.out_dir, cameras, stats.pose_corrections)
     cpu_s = time.process_time() - t0
     info = {
         "gaussians": stats.final_count,
@@ -61,6 +66,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
         "densify": stats.densify,
         "depth_loss": "on" if stats.depth_loss_used else "off (no depth prior)" if depths is None else "off",
         "iterations": stats.iterations,
+        "poses": "refined" if stats.pose_corrections is not None else "as given",
     }
     # coarse.json stays byte-identical between a resumed and an uninterrupted run: timing goes to the record
     art.write_json(
