@@ -113,6 +113,46 @@ def evaluate_scene(
     return per_view
 
 
+def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: EvalParams, ctx):
+    """The test cameras to render, and how they were obtained (``metrics.json`` ``poses``).
+
+    Given poses: the scene's test cameras. A model fitted with refined training poses (coarse
+    ``cameras.json`` says ``refined``) lives in the refined frame, so its metrics are CF metrics: the test
+    cameras are mapped by the similarity from the given onto the refined training cameras, then each is
+    fitted to its photo for ``test_pose_iterations`` with the model frozen (the paper's CF protocol)."""
+    import torch
+
+    from go_core.alignment import similarity_from_cameras
+    from go_core.pose_refine import refine_pose
+
+    refined = (
+        art.CAMERAS.path(inputs["coarse"]).is_file()
+        and art.read_json(inputs["coarse"], art.CAMERAS)["refined"]
+    )
+    if not refined:
+        return scene.test_cameras, {"cf": False, "test": "given"}
+    sim = similarity_from_cameras([v.camera for v in scene.train], art.read_cameras(inputs["coarse"]))
+    cameras = [sim.camera(c) for c in scene.test_cameras]
+    if params.test_pose_iterations > 0:
+        g = gaussians.to(dtype=torch.float32)
+        bar = ctx.progress(len(cameras), "test-view pose fits (CF protocol)")
+        fitted = []
+        for cam, gt in zip(cameras, gts, strict=True):
+            target = torch.as_tensor(np.asarray(gt, np.float32))
+            fitted.append(
+                refine_pose(g, cam, target, iterations=params.test_pose_iterations, backend=params.backend)[0]
+            )
+            bar.advance(1)
+        bar.close()
+        cameras = fitted
+    return cameras, {
+        "cf": True,
+        "test": "CF: similarity from the given onto the refined training cameras, then a per-view pose fit "
+        f"({params.test_pose_iterations} iterations, model frozen)",
+        "similarity_scale": sim.scale,
+    }
+
+
 def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     from PIL import Image
 
@@ -130,8 +170,10 @@ def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     for net, why in suite.unavailable.items():
         ctx.log.warning("LPIPS-%s unavailable: %s", net, why)
 
+    gts = ground_truths(scene)
+    test_cameras, poses = cf_test_cameras(inputs, scene, gaussians, gts, params, ctx)
     t0 = time.perf_counter()
-    renders = render_views(gaussians, scene.test_cameras, ctx.device, params.backend)
+    renders = render_views(gaussians, test_cameras, ctx.device, params.backend)
     render_s = time.perf_counter() - t0
     t0 = time.perf_counter()
     bar = ctx.progress(len(scene.test), "metrics of the test views")
@@ -139,7 +181,6 @@ def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     def advance(row: dict) -> None:
         bar.advance(1, **({"psnr": row["psnr"]} if row["psnr"] is not None else {}))
 
-    gts = ground_truths(scene)
     per_view = evaluate_scene(scene, renders, suite, params.masked, on_view=advance, gts=gts)
     bar.close()
     metric_s = time.perf_counter() - t0
@@ -159,6 +200,7 @@ def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
             "ssim": "3DGS 11x11 Gaussian window, sigma 1.5, zero-padded borders",
             "lpips": "LPIPS v0.1 (lpips_vgg = the paper's LPIPS; lpips_star = 100 x lpips_vgg)",
         },
+        "poses": poses,
         "lpips_status": suite.status(),
         "device": ctx.device,
         "views": per_view,

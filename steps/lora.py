@@ -89,7 +89,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
         raise ValueError(
             f"lora.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"
         )
-    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     source = _pair_source(inputs, params, views)
     loo = LooPairs(inputs["loo"])
     loo_pairs = [pair_tensors(loo.get(i), settings.resolution) for i in range(len(loo))]
@@ -176,7 +176,7 @@ def run(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     counts = add_lora(models, spec, seed=int(ctx.seed))
     diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
 
-    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     source = _pair_source(inputs, params, views)
     settings = TuneSettings(
         steps=params.steps,

@@ -37,7 +37,7 @@ def run(ctx, inputs: dict[str, Path], params: NoisePairsParams) -> None:
     loo = art.read_json(inputs["loo"], art.LOO_INFO)
     stats = NoiseStats.from_json(loo["stats"])
     coarse = art.read_gaussians(inputs["coarse"])
-    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     backend = params.backend
     scale = params.noise_scale
     config = {

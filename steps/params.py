@@ -153,6 +153,9 @@ class EvalParams:
     backend: Backend = "auto"
     grid_views: int = setting(100, ge=0, doc="test views shown in test_grid.png")
     thumb_size: int = setting(128, ge=1, doc="longest side of each grid thumbnail, px")
+    test_pose_iterations: int = setting(
+        200, ge=0, doc="refined-pose models: per-test-view pose fit, model frozen"
+    )
 
 
 # The params class of each step module (pipeline.yaml's `function: <module>:run`).

@@ -140,7 +140,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         )
         lora_note = "fine-tuned" if use_lora else "pretrained (no fine-tuning)"
     lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
-    _, views = training_views(inputs["scene"], inputs.get("mask"))
+    _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     coarse = art.read_gaussians(inputs["coarse"])
     bar: dict = {}
 

@@ -67,3 +67,28 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
     assert steps["repair"].record["repair_model"] == "compact"
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
     assert metrics["model"] == "repair" and metrics["repair_model"].startswith(f"compact:{DEFAULT_MODEL}")
+
+
+@pytest.mark.slow
+def test_refined_poses_flow_through_the_chain_and_eval_scores_them_as_cf(tmp_path, monkeypatch):
+    """coarse.refine_poses: coarse writes the refined cameras, the repair chain renders at them, and eval
+    aligns the test cameras (similarity + per-view fit) and marks its metrics as CF metrics."""
+    from go_core.compact.weights import DEFAULT_MODEL, compact_path
+    from go_pipeline.runner import run_pipeline
+
+    if not compact_path(DEFAULT_MODEL).is_file():
+        pytest.skip(f"{compact_path(DEFAULT_MODEL)} missing: run `go-pipeline weights fetch`")
+    for var in ("GO_SD15_PATH", "GO_CONTROLNET_TILE_PATH", "GO_CLIP_PATH", "GO_SD15_CONFIG"):
+        monkeypatch.delenv(var, raising=False)
+    overrides = {"coarse.refine_poses": True, "coarse.pose_refine_from": 0, "eval.test_pose_iterations": 5}
+    work = tmp_path / "work"
+    summary = run_pipeline(EXAMPLE, workdir=work, profile="test", overrides=overrides, quiet=True)
+    steps = {s.name: s for s in summary.steps}
+    for name in ("coarse", "loo", "noise_pairs", "lora", "repair", "eval"):
+        assert steps[name].status == "ran", name
+    cameras = json.loads((steps["coarse"].artifact_dir / "cameras.json").read_text())
+    assert cameras["refined"] and cameras["cameras"][0]["rotation_change_deg"] == 0.0  # the gauge
+    assert any(c["rotation_change_deg"] > 0 for c in cameras["cameras"][1:])
+    metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
+    assert metrics["poses"]["cf"] is True and "similarity" in metrics["poses"]["test"]
+    assert metrics["model"] == "repair"

@@ -18,9 +18,13 @@ from go_core.gaussians import Gaussians
 from go_core.io.images import composite, to_uint8  # noqa: F401  (to_uint8 re-exported)
 
 
-def training_views(scene_dir: str | Path, mask_dir: str | Path | None = None):
+def training_views(
+    scene_dir: str | Path, mask_dir: str | Path | None = None, coarse_dir: str | Path | None = None
+):
     """(scene, [TrainView]) for the scene artifact's training views, each with its mask: the ``mask`` step's
-    ``masks.npz`` when ``mask_dir`` is given, else the scene's own masks."""
+    ``masks.npz`` when ``mask_dir`` is given, else the scene's own masks. With ``coarse_dir``, the cameras
+    are the ones the coarse model was fitted with (its ``cameras.json``: refined with coarse.refine_poses),
+    so a stage that renders the coarse model at the training views sees it where it was fitted."""
     from go_core import artifacts as art
     from go_core.training import TrainView
 
@@ -29,13 +33,21 @@ def training_views(scene_dir: str | Path, mask_dir: str | Path | None = None):
         masks = art.read_masks(mask_dir, len(scene.train))
     else:
         masks = [v.mask for v in scene.train]
+    cameras = [v.camera for v in scene.train]
+    if coarse_dir is not None:
+        fitted = art.read_cameras(coarse_dir)
+        if [c.name for c in fitted] != [c.name for c in cameras]:
+            raise SceneError(
+                "the coarse cameras are not the scene's training views", art.CAMERAS.path(coarse_dir)
+            )
+        cameras = fitted
     views = []
-    for v, mask in zip(scene.train, masks, strict=True):
+    for v, mask, cam in zip(scene.train, masks, cameras, strict=True):
         if mask is None:
             raise SceneError(f"training view {v.name!r} has no mask (run the mask step)", scene_dir)
         if mask.shape != v.image.shape[:2]:
             raise SceneError(f"mask of {v.name!r} is {mask.shape}, image {v.image.shape[:2]}", mask_dir)
-        views.append(TrainView.from_arrays(v.camera, v.image, mask))
+        views.append(TrainView.from_arrays(cam, v.image, mask))
     return scene, views
 
 
