@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from go_core.scene.types import Scene
 
 from go_core.artifact_files import *  # noqa: F403  (the names: one definition, re-exported)
-from go_core.artifact_files import CAMERAS, GAUSSIANS, REPAIR_INFO, STATUS_OK, Artifact
+from go_core.artifact_files import CAMERAS, GAUSSIANS, REPAIR_INFO, SCENE_INFO, STATUS_OK, Artifact
 
 
 # Readers and writers --------------------------------------------------------------------------------------
@@ -54,11 +54,38 @@ def read_scene_cameras(folder: str | Path) -> tuple[list[Camera], list[Camera]]:
     return load_scene_cameras(folder)
 
 
-def write_scene(out_dir: str | Path, scene: Scene, views_requested: int = 0, max_size: int = 0) -> dict:
-    """``scene.json`` + ``views.npz`` for ``scene``; returns the manifest written."""
+def write_scene(
+    out_dir: str | Path,
+    scene: Scene,
+    views_requested: int = 0,
+    max_size: int = 0,
+    given_poses: dict[str, np.ndarray] | None = None,
+    poses: str = "given",
+) -> dict:
+    """``scene.json`` + ``views.npz`` for ``scene``; returns the manifest written. ``given_poses`` /
+    ``poses``: the folder's own poses of views whose cameras were estimated, and how (scene.poses)."""
     from go_core.scene.artifact import save_scene_artifact
 
-    return save_scene_artifact(scene, out_dir, views_requested=views_requested, max_size=max_size)
+    return save_scene_artifact(
+        scene,
+        out_dir,
+        views_requested=views_requested,
+        max_size=max_size,
+        given_poses=given_poses,
+        poses=poses,
+    )
+
+
+def read_given_train_cameras(folder: str | Path) -> list[Camera]:
+    """The training cameras as the scene folder gave them (for aligning its test cameras)."""
+    from go_core.scene.artifact import load_given_train_cameras
+
+    return load_given_train_cameras(folder)
+
+
+def poses_estimated(folder: str | Path) -> bool:
+    """Whether the ``scene`` step estimated the training poses (scene.poses=estimate)."""
+    return read_json(folder, SCENE_INFO).get("poses", "given") != "given"
 
 
 def read_masks(folder: str | Path, count: int | None = None) -> list[np.ndarray]:

@@ -116,22 +116,21 @@ def evaluate_scene(
 def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: EvalParams, ctx):
     """The test cameras to render, and how they were obtained (``metrics.json`` ``poses``).
 
-    Given poses: the scene's test cameras. A model fitted with refined training poses (coarse
-    ``cameras.json`` says ``refined``) lives in the refined frame, so its metrics are CF metrics: the test
-    cameras are mapped by the similarity from the given onto the refined training cameras, then each is
-    fitted to its photo for ``test_pose_iterations`` with the model frozen (the paper's CF protocol)."""
+    Given poses: the scene's test cameras. A model fitted with estimated (scene.poses) or refined
+    (coarse.refine_poses) training poses lives in the frame of its cameras (coarse ``cameras.json``), so its
+    metrics are CF metrics: the test cameras are mapped by the similarity from the scene folder's own
+    training poses onto those cameras, then each is fitted to its photo for ``test_pose_iterations`` with
+    the model frozen (the paper's CF protocol)."""
     import torch
 
     from go_core.alignment import similarity_from_cameras
     from go_core.pose_refine import refine_pose
 
-    refined = (
-        art.CAMERAS.path(inputs["coarse"]).is_file()
-        and art.read_json(inputs["coarse"], art.CAMERAS)["refined"]
-    )
-    if not refined:
+    refined = art.read_json(inputs["coarse"], art.CAMERAS)["refined"]
+    if not refined and not art.poses_estimated(inputs["scene"]):
         return scene.test_cameras, {"cf": False, "test": "given"}
-    sim = similarity_from_cameras([v.camera for v in scene.train], art.read_cameras(inputs["coarse"]))
+    given = art.read_given_train_cameras(inputs["scene"])
+    sim = similarity_from_cameras(given, art.read_cameras(inputs["coarse"]))
     cameras = [sim.camera(c) for c in scene.test_cameras]
     if params.test_pose_iterations > 0:
         g = gaussians.to(dtype=torch.float32)
@@ -147,7 +146,7 @@ def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: Eval
         cameras = fitted
     return cameras, {
         "cf": True,
-        "test": "CF: similarity from the given onto the refined training cameras, then a per-view pose fit "
+        "test": "CF: similarity from the given onto the fitted training cameras, then a per-view pose fit "
         f"({params.test_pose_iterations} iterations, model frozen)",
         "similarity_scale": sim.scale,
     }

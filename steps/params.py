@@ -32,6 +32,10 @@ class SceneParams:
     max_size: int = setting(
         1600, ge=0, doc="downscale (with a warning) so the longest image side is at most this (0: keep)"
     )
+    poses: Literal["given", "estimate"] = setting(
+        "given", doc="estimate: SfM on the training views, verified (COLMAP-free profile, docs/evaluation.md)"
+    )
+    pose_matcher: Literal["sift", "disk"] = setting("sift", doc="features for poses: estimate")
 
 
 @dataclass

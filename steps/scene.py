@@ -14,11 +14,48 @@ if TYPE_CHECKING:
     from go_pipeline.steps.params import SceneParams
 
 
+def _estimate_training_poses(scene, params: SceneParams, seed: int, folder: Path) -> None:
+    """Replace the training cameras by SfM's (go_core.pose_estimate), or raise one SceneError naming the
+    views and why: a pose that may be wrong never reaches the hull."""
+    from dataclasses import replace
+
+    from go_core.camera import Camera
+    from go_core.pose_estimate import estimate_poses
+    from go_core.posecheck import PoseCheckError
+
+    names = ", ".join(v.name for v in scene.train)
+    try:  # one thread: COLMAP's results repeat exactly only then (the step is deterministic)
+        est = estimate_poses(scene.train, matcher=params.pose_matcher, num_threads=1, seed=seed)
+    except PoseCheckError as exc:
+        raise SceneError(
+            f"scene.poses=estimate: no poses for the training views ({names}): {exc}", folder
+        ) from None
+    if not est.usable:
+        problems = "; ".join(est.verdict.problems)
+        raise SceneError(
+            f"scene.poses=estimate: the estimated training poses ({names}) are refused: {problems}",
+            folder,
+        )
+    for i, view in enumerate(scene.train):
+        cam = est.sfm.cameras[view.name]
+        scene.train[i] = replace(
+            view, camera=Camera(view.name, cam.width, cam.height, cam.K, cam.world_to_cam)
+        )
+
+
 def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
     """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""
     views, max_size = params.views, params.max_size
     scene = load_scene(inputs["folder"], views=views, max_size=max_size)
-    manifest = art.write_scene(ctx.out_dir, scene, views_requested=views, max_size=max_size)
+    given, how = None, "given"
+    if params.poses == "estimate":
+        given = {v.name: v.camera.world_to_cam for v in scene.train}
+        _estimate_training_poses(scene, params, int(ctx.seed), inputs["folder"])
+        how = f"estimated ({params.pose_matcher}, verified)"
+        ctx.log.info("scene: training poses %s", how)
+    manifest = art.write_scene(
+        ctx.out_dir, scene, views_requested=views, max_size=max_size, given_poses=given, poses=how
+    )
     from go_pipeline.manifest import schema_problems
 
     problems = schema_problems("scene_manifest", manifest)

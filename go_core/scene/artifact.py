@@ -95,28 +95,49 @@ def _rel(path: Path | str | None, root: Path | None) -> str | None:
     return p.as_posix()
 
 
-def scene_manifest(scene: Scene, split_source: str = "", views_requested: int = 0, max_size: int = 0) -> dict:
-    """The ``scene.json`` content for ``scene`` (see the module docstring)."""
+def scene_manifest(
+    scene: Scene,
+    split_source: str = "",
+    views_requested: int = 0,
+    max_size: int = 0,
+    given_poses: dict[str, np.ndarray] | None = None,
+    poses: str = "given",
+) -> dict:
+    """The ``scene.json`` content for ``scene`` (see the module docstring). ``given_poses``: the scene
+    folder's own world-to-camera of views whose cameras were estimated (kept for the CF evaluation)."""
     root = Path(scene.root) if scene.root is not None else None
-    return {
+    train = [_camera_json(v, "train", i, root) for i, v in enumerate(scene.train)]
+    for cam in train:
+        if given_poses is not None and cam["name"] in given_poses:
+            cam["given_world_to_cam"] = [[float(x) for x in row] for row in given_poses[cam["name"]]]
+    manifest = {
         "schema": SCHEMA_ID,
         "schema_version": SCHEMA_VERSION,
         "format": scene.format,
         "split_source": split_source or scene.split_source,
         "views_requested": int(views_requested),
         "max_size": int(max_size),
-        "train": [_camera_json(v, "train", i, root) for i, v in enumerate(scene.train)],
+        "train": train,
         "test": [_camera_json(v, "test", i, root) for i, v in enumerate(scene.test)],
     }
+    if poses != "given":
+        manifest["poses"] = poses
+    return manifest
 
 
 def save_scene_artifact(
-    scene: Scene, out_dir: str | Path, split_source: str = "", views_requested: int = 0, max_size: int = 0
+    scene: Scene,
+    out_dir: str | Path,
+    split_source: str = "",
+    views_requested: int = 0,
+    max_size: int = 0,
+    given_poses: dict[str, np.ndarray] | None = None,
+    poses: str = "given",
 ) -> dict:
     """Write ``scene.json`` and ``views.npz`` into ``out_dir``; returns the manifest dict."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    manifest = scene_manifest(scene, split_source, views_requested, max_size)
+    manifest = scene_manifest(scene, split_source, views_requested, max_size, given_poses, poses)
     arrays: dict[str, np.ndarray] = {}
     for split, views in (("train", scene.train), ("test", scene.test)):
         for i, v in enumerate(views):
@@ -151,6 +172,17 @@ def camera_from_json(d: dict) -> Camera:
         np.asarray(d["K"], np.float64),
         np.asarray(d["world_to_cam"], np.float64),
     )
+
+
+def load_given_train_cameras(artifact_dir: str | Path) -> list[Camera]:
+    """The training cameras as the scene folder gave them (differs from ``load_scene_cameras`` only for
+    views whose poses were estimated)."""
+    m = read_scene_manifest(artifact_dir)
+    cams = []
+    for c in m["train"]:
+        given = {**c, "world_to_cam": c["given_world_to_cam"]} if "given_world_to_cam" in c else c
+        cams.append(camera_from_json(given))
+    return cams
 
 
 def load_scene_cameras(artifact_dir: str | Path) -> tuple[list[Camera], list[Camera]]:

@@ -100,29 +100,20 @@ def estimate(
 ) -> int:
     """SfM, then ``verify_poses`` on the result: the transforms are written only when every check passes."""
     from go_core.io.atomic import atomic_write_json
-    from go_core.pose_verify import verify_poses
-    from go_core.posecheck import PoseCheckError, reconstruct
+    from go_core.pose_estimate import estimate_poses
+    from go_core.posecheck import PoseCheckError
 
     views = _image_views(folder)
     try:
-        sfm = reconstruct(views, num_threads=threads, matcher=matcher)
+        est = estimate_poses(
+            views, matcher=matcher, num_threads=threads, allow_unregistered=allow_unregistered
+        )
+        if est.missing and not allow_unregistered:
+            est.verdict.problems[0] += "; --allow-unregistered writes the rest"
     except PoseCheckError as exc:
         raise GoError(f"could not estimate poses: {exc}", folder) from exc
+    sfm, verdict, missing = est.sfm, est.verdict, est.missing
     registered = [v for v in views if v.name in sfm.cameras]
-    missing = [v.name for v in views if v.name not in sfm.cameras]
-    masks = [v.mask for v in registered] if all(v.mask is not None for v in registered) else None
-    verdict = verify_poses(
-        [sfm.cameras[v.name] for v in registered],
-        masks,
-        mean_reprojection_px=sfm.mean_reprojection_px,
-        observations=sfm.observations,
-    )
-    if missing and not allow_unregistered:
-        verdict.problems.insert(
-            0,
-            f"{len(missing)} of {len(views)} images could not be registered: {', '.join(missing)} "
-            "(too few matches with the others; --allow-unregistered writes the rest)",
-        )
     print(f"registered {len(registered)} of {len(views)} images ({matcher}); {sfm.num_points} points")
     cov = verdict.mask_coverage
     print(
