@@ -118,7 +118,7 @@ def main() -> None:
     for name in args.scenes:
         scene_dir = args.data / name
         workdir = args.workroot / name
-        entry: dict = {"variants": {}, "steps": {}}
+        entry: dict = result["scenes"].get(name) or {"variants": {}, "steps": {}}  # variants add up
         for variant in args.variants:
             t0 = time.perf_counter()
             summary = run_pipeline(

@@ -131,6 +131,9 @@ class RepairParams(RepairSettings):
     lpips_net: Literal["vgg", "alex"] = "vgg"
     precision: Precision = "auto"
     compact_resolution: int = setting(256, ge=1, doc="compact model: side of the repaired views")
+    compact_lpips: float = setting(
+        0.0, ge=0, doc="compact model: LPIPS term weight (0: no gain measured, half the step's CPU)"
+    )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
 
 

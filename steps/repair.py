@@ -119,7 +119,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
             raise GoError(
                 f"repair.compact_resolution must be a multiple of {diffusion.restorer.scale}, got {res}"
             )
-        settings = replace(settings, resolution=res)
+        settings = replace(settings, resolution=res, lpips=params.compact_lpips)
     else:
         paths = WeightPaths(**lora_info["weights"])
         weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
