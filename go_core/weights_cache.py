@@ -1,0 +1,15 @@
+"""Where fetched model weights live, and the command that fetches them (shared by every weights module;
+a leaf module, so importing it pulls in no metric or renderer code, and no cache key depends on them)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+FETCH_COMMAND = "go-pipeline weights fetch"
+
+
+def cache_dir() -> Path:
+    """``$GO_PIPELINE_CACHE`` or ``~/.cache/go-pipeline``."""
+    env = os.environ.get("GO_PIPELINE_CACHE")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "go-pipeline"
