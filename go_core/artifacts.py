@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
     from go_core.camera import Camera
     from go_core.gaussians import Gaussians
+    from go_core.scene.artifact import Ingest
     from go_core.scene.types import Scene
 
 from go_core.artifact_files import *  # noqa: F403  (the names: one definition, re-exported)
@@ -54,26 +55,11 @@ def read_scene_cameras(folder: str | Path) -> tuple[list[Camera], list[Camera]]:
     return load_scene_cameras(folder)
 
 
-def write_scene(
-    out_dir: str | Path,
-    scene: Scene,
-    views_requested: int = 0,
-    max_size: int = 0,
-    given_poses: dict[str, np.ndarray] | None = None,
-    poses: str = "given",
-) -> dict:
-    """``scene.json`` + ``views.npz`` for ``scene``; returns the manifest written. ``given_poses`` /
-    ``poses``: the folder's own poses of views whose cameras were estimated, and how (scene.poses)."""
-    from go_core.scene.artifact import save_scene_artifact
+def write_scene(out_dir: str | Path, scene: Scene, ingest: Ingest | None = None) -> dict:
+    """``scene.json`` + ``views.npz`` for ``scene`` (``ingest``: how it was made); returns the manifest."""
+    from go_core.scene.artifact import Ingest, save_scene_artifact
 
-    return save_scene_artifact(
-        scene,
-        out_dir,
-        views_requested=views_requested,
-        max_size=max_size,
-        given_poses=given_poses,
-        poses=poses,
-    )
+    return save_scene_artifact(scene, out_dir, ingest or Ingest())
 
 
 def read_given_train_cameras(folder: str | Path) -> list[Camera]:

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.errors import SceneError
+from go_core.scene.artifact import Ingest
 from go_core.scene.loader import load_scene
 
 if TYPE_CHECKING:
@@ -53,9 +54,8 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
         _estimate_training_poses(scene, params, int(ctx.seed), inputs["folder"])
         how = f"estimated ({params.pose_matcher}, verified)"
         ctx.log.info("scene: training poses %s", how)
-    manifest = art.write_scene(
-        ctx.out_dir, scene, views_requested=views, max_size=max_size, given_poses=given, poses=how
-    )
+    ingest = Ingest(views_requested=views, max_size=max_size, given_poses=given, poses=how)
+    manifest = art.write_scene(ctx.out_dir, scene, ingest)
     from go_pipeline.manifest import schema_problems
 
     problems = schema_problems("scene_manifest", manifest)

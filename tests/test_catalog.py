@@ -75,7 +75,9 @@ def test_scene_and_masks_round_trip_through_the_catalog(tmp_path):
     from go_core.scene.loader import load_scene
 
     scene = load_scene(write_nerf_scene(tmp_path / "raw", n_train=3, n_test=1))
-    manifest = art.write_scene(tmp_path / "scene", scene, views_requested=3)
+    from go_core.scene.artifact import Ingest
+
+    manifest = art.write_scene(tmp_path / "scene", scene, Ingest(views_requested=3))
     assert sorted(p.name for p in (tmp_path / "scene").iterdir()) == sorted(
         [art.SCENE_INFO.file, art.SCENE_VIEWS.file]
     )

@@ -12,7 +12,7 @@ import pytest
 from _scene_helpers import write_colmap_scene
 
 from go_core.scene import load_scene, load_scene_artifact, load_scene_cameras, save_scene_artifact
-from go_core.scene.artifact import read_scene_manifest
+from go_core.scene.artifact import Ingest, read_scene_manifest
 from go_pipeline.pipeline import step_params
 
 SCHEMA = Path(__file__).resolve().parents[1] / "data_schema" / "scene_manifest.schema.json"
@@ -64,7 +64,7 @@ def test_round_trip_exact_for_8bit_sources(basket, tmp_path, schema):
 
 def test_round_trip_float16_after_downscale(shared_data, tmp_path, schema):
     scene = load_scene(shared_data / "real" / "blowtorch", max_size=64)
-    manifest = save_scene_artifact(scene, tmp_path / "a", views_requested=0, max_size=64)
+    manifest = save_scene_artifact(scene, tmp_path / "a", Ingest(max_size=64))
     schema.validate(manifest)
     assert manifest["train"][0]["width"] == 64 and manifest["train"][0]["height"] == 43
     with np.load(tmp_path / "a" / "views.npz") as z:

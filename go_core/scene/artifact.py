@@ -30,6 +30,7 @@ to the original scene folder.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -95,49 +96,46 @@ def _rel(path: Path | str | None, root: Path | None) -> str | None:
     return p.as_posix()
 
 
-def scene_manifest(
-    scene: Scene,
-    split_source: str = "",
-    views_requested: int = 0,
-    max_size: int = 0,
-    given_poses: dict[str, np.ndarray] | None = None,
-    poses: str = "given",
-) -> dict:
-    """The ``scene.json`` content for ``scene`` (see the module docstring). ``given_poses``: the scene
-    folder's own world-to-camera of views whose cameras were estimated (kept for the CF evaluation)."""
+@dataclass(frozen=True)
+class Ingest:
+    """How the ``scene`` step made the artifact (recorded in ``scene.json``)."""
+
+    split_source: str = ""  # where the train/test split came from ("": the scene's own)
+    views_requested: int = 0  # --views N (0: the scene's own split)
+    max_size: int = 0  # the downscale limit applied (0: none)
+    given_poses: dict[str, np.ndarray] | None = None  # the folder's own poses of views whose were estimated
+    poses: str = "given"  # or how the training poses were estimated
+
+
+def scene_manifest(scene: Scene, ingest: Ingest = Ingest()) -> dict:
+    """The ``scene.json`` content for ``scene`` (see the module docstring); the folder's own poses of
+    views whose cameras were estimated are kept beside them (``given_world_to_cam``, for the CF eval)."""
     root = Path(scene.root) if scene.root is not None else None
     train = [_camera_json(v, "train", i, root) for i, v in enumerate(scene.train)]
+    given = ingest.given_poses or {}
     for cam in train:
-        if given_poses is not None and cam["name"] in given_poses:
-            cam["given_world_to_cam"] = [[float(x) for x in row] for row in given_poses[cam["name"]]]
+        if cam["name"] in given:
+            cam["given_world_to_cam"] = [[float(x) for x in row] for row in given[cam["name"]]]
     manifest = {
         "schema": SCHEMA_ID,
         "schema_version": SCHEMA_VERSION,
         "format": scene.format,
-        "split_source": split_source or scene.split_source,
-        "views_requested": int(views_requested),
-        "max_size": int(max_size),
+        "split_source": ingest.split_source or scene.split_source,
+        "views_requested": int(ingest.views_requested),
+        "max_size": int(ingest.max_size),
         "train": train,
         "test": [_camera_json(v, "test", i, root) for i, v in enumerate(scene.test)],
     }
-    if poses != "given":
-        manifest["poses"] = poses
+    if ingest.poses != "given":
+        manifest["poses"] = ingest.poses
     return manifest
 
 
-def save_scene_artifact(
-    scene: Scene,
-    out_dir: str | Path,
-    split_source: str = "",
-    views_requested: int = 0,
-    max_size: int = 0,
-    given_poses: dict[str, np.ndarray] | None = None,
-    poses: str = "given",
-) -> dict:
+def save_scene_artifact(scene: Scene, out_dir: str | Path, ingest: Ingest = Ingest()) -> dict:
     """Write ``scene.json`` and ``views.npz`` into ``out_dir``; returns the manifest dict."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    manifest = scene_manifest(scene, split_source, views_requested, max_size, given_poses, poses)
+    manifest = scene_manifest(scene, ingest)
     arrays: dict[str, np.ndarray] = {}
     for split, views in (("train", scene.train), ("test", scene.test)):
         for i, v in enumerate(views):
