@@ -49,8 +49,9 @@ def test_step_usage_excludes_child_processes_and_the_one_time_build(tmp_path, in
     m = store.load_manifest(result.step("side").artifact_dir)
     build, work = m["record"]["rasterizer_build_s"], m["record"]["work_s"]
     assert 3.0 <= build < 5.0
-    # the step's wall time is its work (+ process start-up) less the build
-    assert m["wall_s"] < work - build + 1.5
+    # the step's wall time is its work (+ process start-up) less the build: had the build been booked, the
+    # wall time would exceed the work; the margin is the worker's start-up, which grows with machine load
+    assert m["wall_s"] < work - 0.2 * build
     assert m["wall_s"] > work - build - 0.1
     if not in_process:  # in-process, the runner's own footprint is the process's
         assert m["peak_mem_mb"] < 300, "the child's 400 MB or the parent's 600 MB were booked to the step"
