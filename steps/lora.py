@@ -84,6 +84,8 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
         betas=params.betas,
         resolution=params.compact_resolution,
         checkpoint_every=params.checkpoint_every,
+        method=params.compact_method,
+        rank=params.compact_rank,
     )
     if settings.resolution % model.scale:
         raise ValueError(
@@ -116,7 +118,9 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
         **base,
         "status": "ok",
         "tuned": art.COMPACT_WEIGHTS.file,
-        "method": "full fine-tune (L1, Adam)",
+        "method": "full fine-tune (L1, Adam)"
+        if settings.method == "full"
+        else f"LoRA rank {settings.rank} on the convolutions, merged (L1, Adam)",
         "settings": asdict(settings),
         "loo_pairs_l1": {"before": round(before, 6), "after": round(after, 6), "pairs": len(loo_pairs)},
         **summary,

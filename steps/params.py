@@ -117,6 +117,8 @@ class LoraParams:
     precision: Precision = setting("auto", doc="CUDA: auto/bf16 | fp16 | fp32; CPU is always fp32")
     compact_steps: int = setting(400, ge=0, doc="compact repair model: full fine-tune steps (L1, Adam)")
     compact_lr: float = setting(0.0001, gt=0, doc="compact: Adam learning rate")
+    compact_method: Literal["full", "lora"] = setting("full", doc="compact: full fine-tune or LoRA (peft)")
+    compact_rank: int = setting(8, ge=1, doc="compact: LoRA rank (compact_method lora)")
     compact_resolution: int = setting(256, ge=1, doc="compact: pair side (a multiple of the model's scale)")
     backend: Backend = "auto"
 

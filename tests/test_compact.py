@@ -176,22 +176,26 @@ def test_auto_chooses_compact_without_sd_weights_and_records_its_hash(tmp_path, 
 # --- per-scene tuning ----------------------------------------------------------------------------------
 
 
-def test_tuning_lowers_the_loss_on_held_back_pairs(upstream, tmp_path, tiny_cache):
+@pytest.mark.parametrize("method", ["full", "lora"])
+def test_tuning_lowers_the_loss_on_held_back_pairs(upstream, tmp_path, tiny_cache, method):
     """Tuned on noise pairs only, the restorer's L1 on the (never seen) leave-one-out pairs drops."""
     root, dirs = upstream
-    ctx = _lora(tmp_path, dirs, {**LORA, "compact_steps": 40, "checkpoint_every": 0, "use_loo_pairs": False})
+    params = {**LORA, "compact_steps": 40, "checkpoint_every": 0, "use_loo_pairs": False}
+    ctx = _lora(tmp_path, dirs, {**params, "compact_method": method})
     held = json.loads((ctx.out_dir / "lora.json").read_text())["loo_pairs_l1"]
     assert held["pairs"] >= 4
     assert held["after"] < 0.95 * held["before"], held
 
 
-def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tiny_cache, monkeypatch):
+@pytest.mark.parametrize("method", ["full", "lora"])
+def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tiny_cache, monkeypatch, method):
     from safetensors.torch import load_file
 
     from go_core.compact import tuning
 
     root, dirs = upstream
-    full = _lora(tmp_path / "a", dirs, LORA)
+    params = {**LORA, "compact_method": method}
+    full = _lora(tmp_path / "a", dirs, params)
     original, saved = tuning._save, []
 
     def save_then_die(directory, tensors, meta, step, keep=2):
@@ -202,10 +206,10 @@ def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tin
 
     monkeypatch.setattr(tuning, "_save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        _lora(tmp_path / "b", dirs, LORA)
+        _lora(tmp_path / "b", dirs, params)
     assert saved == [2, 4]
     monkeypatch.setattr(tuning, "_save", original)
-    resumed = _lora(tmp_path / "b", dirs, LORA)
+    resumed = _lora(tmp_path / "b", dirs, params)
     assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
     a = load_file(str(full.out_dir / "compact.safetensors"))
     b = load_file(str(resumed.out_dir / "compact.safetensors"))
@@ -213,6 +217,36 @@ def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tin
     assert (full.out_dir / "lora.json").read_bytes() == (resumed.out_dir / "lora.json").read_bytes()
     first = load_file(str(tiny_cache / "compact" / "realesr-animevideov3-x4.safetensors"))
     assert any(not torch.equal(first[k], a[k]) for k in a)  # tuning moved the weights
+
+
+def test_conv_lora_starts_as_the_identity_and_merges_exactly(tiny_cache):
+    from go_core.compact.lora import add_conv_lora, merge_conv_lora
+    from go_core.compact.restorer import CompactRestorer
+
+    model = CompactRestorer.load("realesr-animevideov3-x4")
+    x = torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    base = {k: v.clone() for k, v in model.net.ncnn_tensors().items()}
+    with torch.no_grad():
+        before = model(x)
+    trainable = add_conv_lora(model.net, 4, seed=0)
+    assert 0 < sum(p.numel() for p in trainable) < sum(v.numel() for v in base.values())
+    with torch.no_grad():
+        assert torch.equal(model(x), before)  # peft's B = 0 at init
+    opt = torch.optim.Adam(trainable, lr=1e-2)
+    for _ in range(3):
+        loss = (model(x) - x).abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        adapted = model(x)
+    assert not torch.equal(adapted, before)
+    merge_conv_lora(model.net)
+    tuned = model.net.ncnn_tensors()
+    assert tuned.keys() == base.keys()  # plain convolutions again: saved like a full fine-tune
+    assert all(torch.equal(tuned[k], base[k]) for k in base if k.endswith((".bias", ".slope")))
+    with torch.no_grad():
+        torch.testing.assert_close(model(x), adapted, atol=1e-5, rtol=0)
 
 
 # --- repair ---------------------------------------------------------------------------------------------

@@ -35,6 +35,8 @@ class CompactTuneSettings:
     resolution: int = 256
     checkpoint_every: int = 100
     log_every: int = 10
+    method: str = "full"  # "full": every weight; "lora": rank-``rank`` adapters on the convolutions (peft)
+    rank: int = 8
 
     def fingerprint(self, extra: str = "") -> str:
         blob = json.dumps({"s": asdict(self), "x": extra}, sort_keys=True)
@@ -100,8 +102,15 @@ def tune_compact(
 ) -> dict:
     """Fine-tune ``model`` in place on pairs from ``draw(rng, generator)``; ``schedule`` is the pair
     schedule whose state is checkpointed (``PairSchedule``). Returns a summary dict."""
-    params = list(model.parameters())
-    names = [n for n, _ in model.named_parameters()]
+    if settings.method == "lora":
+        from go_core.compact.lora import add_conv_lora
+
+        add_conv_lora(model.net, settings.rank, seed)
+    elif settings.method != "full":
+        raise ValueError(f"compact tuning method must be 'full' or 'lora', got {settings.method!r}")
+    trainable = [(n, p) for n, p in model.named_parameters() if p.requires_grad]
+    params = [p for _, p in trainable]
+    names = [n for n, _ in trainable]
     opt = torch.optim.Adam(params, lr=settings.lr, betas=tuple(settings.betas))
     gen = torch_generator(int(seed), "compact_noise")
     rng = numpy_rng(int(seed), "compact_batches")
@@ -178,6 +187,10 @@ def tune_compact(
                 "running": running,
             }
             _save(Path(checkpoint_dir), tensors, meta, step)
+    if settings.method == "lora":
+        from go_core.compact.lora import merge_conv_lora
+
+        merge_conv_lora(model.net)
     model.eval()
     return {
         "steps": settings.steps,
