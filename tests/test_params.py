@@ -81,6 +81,7 @@ def test_steps_have_no_fallback_defaults_or_rename_tables():
         ({"coarse.nope": 1}, "--set coarse.nope=1: step 'coarse' has no param 'nope' (params: "),
         ({"loo.coarse": {}}, "--set loo.coarse={}: loo.coarse is step 'coarse''s params, given to 'loo': set coarse.NAME instead"),  # noqa: E501
         ({"repair.t_range": [0.9, 0.2]}, "step 'repair': t_range must be increasing, got [0.9, 0.2]"),
+        ({"repair.opacity_reset_every": 500}, "step 'repair': opacity_reset_every=500 resets opacities to coarse.opacity_reset_value 0.01, below min_opacity 0.02"),  # noqa: E501
     ],
 )  # fmt: skip
 def test_bad_set_values_are_one_clear_error(pipeline, overrides, message):

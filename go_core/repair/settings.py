@@ -56,18 +56,31 @@ class RepairSettings:
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
     densify_until: int = setting(3600, ge=0)
     densify_every: int = setting(100, ge=1)
-    opacity_reset_every: int = setting(500, ge=0)
+    opacity_reset_every: int = setting(
+        0, ge=0, doc="0: none (a reset below min_opacity would prune the model away)"
+    )
     min_opacity: float = setting(0.02, ge=0, lt=1)
     checkpoint_every: int = setting(200, ge=0)
     backend: Backend = "auto"
     coarse: CoarseConfig = setting(default_factory=CoarseConfig, doc="the coarse step's settings")
 
     def check(self) -> list[str]:
-        return [
+        problems = [
             f"{name} must be increasing, got {list(value)}"
             for name, value in (("t_range", self.t_range), ("strength_range", self.strength_range))
             if value[0] > value[1]
         ]
+        reset = self.coarse.opacity_reset_value
+        last = min(self.densify_until, self.iterations)  # resets happen only while densifying
+        fires = 0 < self.opacity_reset_every < last
+        if fires and reset < self.min_opacity:
+            problems.append(
+                f"opacity_reset_every={self.opacity_reset_every} resets opacities to "
+                f"coarse.opacity_reset_value {reset:g}, below min_opacity {self.min_opacity:g}: the next "
+                "pruning removes every Gaussian "
+                "not re-grown by then (dev/basket lost 89% of its Gaussians); lower min_opacity or set 0"
+            )
+        return problems
 
     def training_config(self, sh_degree: int) -> CoarseConfig:
         """The coarse stage's loss and learning rates with the repair schedule: constant position rate,
