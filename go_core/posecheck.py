@@ -12,7 +12,8 @@
 4. Per image: median (robust) and mean reprojection error over its observations; an image whose median
    error is above ``threshold_px`` (scaled to the image size) is flagged.
 
-``estimate_poses`` runs pycolmap incremental SfM for scenes without poses.
+``reconstruct`` runs pycolmap incremental SfM for scenes without poses (go_core.pose_estimate verifies its
+result before anything uses it).
 """
 
 from __future__ import annotations
@@ -657,15 +658,3 @@ def reconstruct(
         int(rec.num_points3D()),
         len(matches),
     )
-
-
-def estimate_poses(
-    views,
-    workdir: Path | None = None,
-    num_threads: int = 2,
-    max_features: int = 4096,
-    seed: int = 0,
-    matcher: str = DEFAULT_MATCHER,
-) -> dict:
-    """{name: Camera} of the registered views (``reconstruct`` without the figures)."""
-    return reconstruct(views, workdir, num_threads, max_features, seed, matcher).cameras

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from go_core.alignment import umeyama
 from go_core.camera import Camera
 from go_core.posecheck import (
     build_tracks,
     check_poses,
     epipolar_distances,
-    estimate_poses,
     leave_one_out_errors,
+    reconstruct,
     triangulate_dlt,
 )
 from go_core.scene import load_scene
@@ -125,21 +126,17 @@ def _orbit(az: float) -> np.ndarray:
 def test_estimate_poses_with_sfm(shared_data):
     scene = load_scene(shared_data / "dev" / "alphabet_soup")
     views = scene.train + scene.test
-    cams = estimate_poses(views, num_threads=1, seed=0)  # one thread: COLMAP repeats exactly
+    cams = reconstruct(views, num_threads=1, seed=0).cameras  # one thread: COLMAP repeats exactly
     names = [v.name for v in views if v.name in cams]
     assert len(names) >= 8
     given = {v.name: v.camera for v in views}
-    # align the SfM frame to the given one (similarity from the camera centres) and compare
+    # align the SfM frame to the given one (least-squares similarity of the camera centres) and compare
     A = np.stack([cams[n].center for n in names])
     B = np.stack([given[n].center for n in names])
-    ma, mb = A.mean(0), B.mean(0)
-    U, S, Vt = np.linalg.svd((B - mb).T @ (A - ma))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / ((A - ma) ** 2).sum()
-    assert np.linalg.norm(s * (A - ma) @ R.T + mb - B, axis=1).max() < 0.1  # 10% of the object radius
+    sim = umeyama(A, B)
+    assert np.linalg.norm(sim.points(A) - B, axis=1).max() < 0.1  # 10% of the object radius
     for n in names:
-        Rrel = given[n].world_to_cam[:3, :3] @ R @ cams[n].world_to_cam[:3, :3].T
+        Rrel = given[n].world_to_cam[:3, :3] @ sim.rotation @ cams[n].world_to_cam[:3, :3].T
         assert np.degrees(np.arccos(np.clip((np.trace(Rrel) - 1) / 2, -1, 1))) < 2.0
 
 
