@@ -30,7 +30,10 @@ DEPTH_INFO = Artifact("depth.json", "the depth model used, or why the depth step
 GAUSSIANS = Artifact("gaussians.npz", "a set of 3D Gaussians")
 HULL_INFO = Artifact("hull.json", "the initialisation: point count, bounding box, volume")
 COARSE_INFO = Artifact("coarse.json", "coarse training: counts, settings, loss log")
-CAMERAS = Artifact("cameras.json", "the training cameras coarse fitted (refined with coarse.refine_poses)")
+CAMERAS = Artifact(
+    "cameras.json",
+    "training cameras: hull's when aligned (hull.align_poses), coarse's fitted ones (coarse.refine_poses)",
+)
 CURVES = Artifact("curves.csv", "training curves: loss, train PSNR, Gaussians per logged step")
 # The repair chain
 WEIGHTS_INFO = Artifact("weights.json", "the repair model's weights, or why they are missing")

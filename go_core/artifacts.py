@@ -88,10 +88,15 @@ def write_masks(out_dir: str | Path, masks: list[np.ndarray]) -> Path:
 
 
 def write_cameras(
-    out_dir: str | Path, cameras: list[Camera], corrections: list[list[float]] | None = None
+    out_dir: str | Path,
+    cameras: list[Camera],
+    corrections: list[list[float]] | None = None,
+    aligned: bool = False,
 ) -> Path:
     """``cameras.json``: the training cameras a model was fitted with; ``corrections`` (per view
-    [ωx, ωy, ωz, τx, τy, τz], go_core.pose_refine) when refined, with each view's rotation change."""
+    [ωx, ωy, ωz, τx, τy, τz], go_core.pose_refine) when refined, with each view's rotation change;
+    ``aligned`` when they were turned by the hull's silhouette alignment. ``refined`` is true when either
+    moved them: the model then lives in their frame, not the scene folder's (eval's CF protocol)."""
     import math
 
     rows = []
@@ -107,7 +112,13 @@ def write_cameras(
             row["correction"] = [float(x) for x in corrections[i]]
             row["rotation_change_deg"] = math.degrees(math.sqrt(sum(x * x for x in corrections[i][:3])))
         rows.append(row)
-    return write_json(out_dir, CAMERAS, {"refined": corrections is not None, "cameras": rows})
+    refined = corrections is not None or aligned
+    return write_json(out_dir, CAMERAS, {"refined": refined, "aligned": aligned, "cameras": rows})
+
+
+def cameras_aligned(folder: str | Path) -> bool:
+    """Whether ``folder``'s ``cameras.json`` holds cameras turned by the hull's silhouette alignment."""
+    return CAMERAS.path(folder).is_file() and bool(read_json(folder, CAMERAS).get("aligned", False))
 
 
 def read_cameras(folder: str | Path) -> list[Camera]:

@@ -32,9 +32,11 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     depths = load_depth_priors(inputs["depth"]) if "depth" in inputs else None
     if depths is not None and len(depths) != len(scene.train):
         depths = None
+    aligned = art.cameras_aligned(inputs["hull"])  # hull.align_poses: start from the hull's cameras
+    cameras = art.read_cameras(inputs["hull"]) if aligned else scene.train_cameras
     views = [
-        TrainView.from_arrays(v.camera, v.image, m, depths[i] if depths is not None else None)
-        for i, (v, m) in enumerate(zip(scene.train, masks, strict=True))
+        TrainView.from_arrays(c, v.image, m, depths[i] if depths is not None else None)
+        for i, (v, c, m) in enumerate(zip(scene.train, cameras, masks, strict=True))
     ]
     generator = torch_generator(int(ctx.seed))  # the run's seed itself (derive_seed without tags)
     state: dict = {"bar": None}
@@ -56,7 +58,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     cameras = [v.camera for v in views]
     if stats.pose_corrections is not None:  # coarse.refine_poses: the cameras the Gaussians were fitted with
         cameras = apply_corrections(cameras, stats.pose_corrections)
-    art.write_cameras(ctx.out_dir, cameras, stats.pose_corrections)
+    art.write_cameras(ctx.out_dir, cameras, stats.pose_corrections, aligned=aligned)
     cpu_s = time.process_time() - t0
     info = {
         "gaussians": stats.final_count,
@@ -66,7 +68,8 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
         "densify": stats.densify,
         "depth_loss": "on" if stats.depth_loss_used else "off (no depth prior)" if depths is None else "off",
         "iterations": stats.iterations,
-        "poses": "refined" if stats.pose_corrections is not None else "as given",
+        "poses": ("aligned, " if aligned else "")
+        + ("refined" if stats.pose_corrections is not None else "as given" if not aligned else "not refined"),
     }
     # coarse.json stays byte-identical between a resumed and an uninterrupted run: timing goes to the record
     art.write_json(

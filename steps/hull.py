@@ -2,7 +2,9 @@
 vanilla-3DGS ablation (``init: random``), uniformly random points with random colours in a cube around the
 cameras' look-at point whose size follows from the cameras' field of view (so no mask information is used).
 
-Outputs ``gaussians.npz`` (go_core.gaussians) and ``hull.json`` (point count, bounding box, volume estimate).
+Outputs ``gaussians.npz`` (go_core.gaussians) and ``hull.json`` (point count, bounding box, volume estimate);
+with ``align_poses`` first turns the training cameras until their silhouettes agree (go_core.silhouette_align:
+poses from another source are rarely exact) and writes them as ``cameras.json``, which coarse starts from.
 """
 
 from __future__ import annotations
@@ -32,6 +34,33 @@ def random_box(cameras) -> tuple[np.ndarray, np.ndarray]:
     return target - half, target + half
 
 
+def _aligned_cameras(ctx, cams, masks, params: HullParams, info: dict):
+    """hull.align_poses: the training cameras turned until their silhouettes agree (go_core.silhouette_align),
+    written as ``cameras.json`` for coarse; coverage before/after and the turns go to ``hull.json``."""
+    from go_core.errors import SceneError
+    from go_core.hull import hull_bounds
+    from go_core.silhouette_align import SilhouetteAlignSettings, align_rotations
+
+    if len(cams) < 3:
+        raise SceneError(f"hull.align_poses needs at least 3 training views, the scene has {len(cams)}")
+    box = hull_bounds(cams, masks, min_views=len(cams) - 1, threshold=params.mask_threshold)
+    settings = SilhouetteAlignSettings(iterations=params.align_iterations)
+    res = align_rotations(cams, masks, box, settings)
+    art.write_cameras(ctx.out_dir, res.cameras, aligned=True)
+    info["aligned"] = {
+        "turned_deg": [round(x, 4) for x in res.rotations_deg],
+        "coverage_before": [round(x, 4) for x in res.coverage_before],
+        "coverage_after": [round(x, 4) for x in res.coverage_after],
+    }
+    ctx.log.info(
+        "hull: cameras turned by %s° (silhouette coverage %.3f → %.3f)",
+        ", ".join(f"{x:.2f}" for x in res.rotations_deg),
+        min(res.coverage_before),
+        min(res.coverage_after),
+    )
+    return res.cameras
+
+
 def run(ctx, inputs: dict[str, Path], params: HullParams) -> None:
     init = params.init
     scene = art.read_scene(inputs["scene"])
@@ -40,6 +69,8 @@ def run(ctx, inputs: dict[str, Path], params: HullParams) -> None:
     images = [v.image for v in scene.train]
     num, opacity = params.num_points, params.opacity
     info: dict = {"init": init}
+    if params.align_poses:
+        cams = _aligned_cameras(ctx, cams, masks, params, info)
     if init == "hull":
         res = visual_hull(
             cams,

@@ -43,7 +43,7 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
         write_skipped(ctx, art.LOO_INFO, "repair model weights missing (see the weights step)")
         write_npz_deterministic(art.LOO_PAIRS.path(ctx.out_dir), {})
         return
-    scene, views = training_views(inputs["scene"], inputs.get("mask"))
+    scene, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])  # coarse's cameras
     if len(views) < 2:
         raise SceneError(f"leave-one-out needs at least 2 training views, got {len(views)}", inputs["scene"])
     init = art.read_gaussians(inputs["hull"])

@@ -32,8 +32,10 @@ class SceneParams:
     max_size: int = setting(
         1600, ge=0, doc="downscale (with a warning) so the longest image side is at most this (0: keep)"
     )
-    poses: Literal["given", "estimate"] = setting(
-        "given", doc="estimate: SfM on the training views, verified (COLMAP-free profile, docs/evaluation.md)"
+    poses: Literal["given", "estimate", "initial"] = setting(
+        "given",
+        doc="estimate: SfM on the training views, verified (COLMAP-free profile, docs/evaluation.md); "
+        "initial: start from the folder's initial_poses.json (the folder's own poses stay the reference)",
     )
     pose_matcher: Literal["sift", "disk"] = setting("sift", doc="features for poses: estimate")
 
@@ -60,6 +62,11 @@ class HullParams:
     all_but_one: bool = setting(False, doc="keep points inside all masks but one (authors' code)")
     mask_threshold: float = setting(0.5, gt=0, lt=1)
     opacity: float = setting(0.1, gt=0, lt=1, doc="initial opacity of every Gaussian")
+    align_poses: bool = setting(
+        False,
+        doc="turn the training cameras until their silhouettes agree before carving (on in --profile cf)",
+    )
+    align_iterations: int = setting(80, ge=1, doc="align_poses: Adam steps per coarse-to-fine level")
 
 
 @dataclass

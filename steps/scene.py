@@ -54,6 +54,16 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
         _estimate_training_poses(scene, params, int(ctx.seed), inputs["folder"])
         how = f"estimated ({params.pose_matcher}, verified)"
         ctx.log.info("scene: training poses %s", how)
+    elif params.poses == "initial":
+        from dataclasses import replace
+
+        from go_core.scene.initial_poses import INITIAL_POSES_FILE, read_initial_poses
+
+        given = {v.name: v.camera.world_to_cam for v in scene.train}
+        cameras = read_initial_poses(inputs["folder"], scene.train_cameras)
+        scene.train[:] = [replace(v, camera=c) for v, c in zip(scene.train, cameras, strict=True)]
+        how = f"initial ({INITIAL_POSES_FILE})"
+        ctx.log.info("scene: training poses from %s", INITIAL_POSES_FILE)
     ingest = Ingest(views_requested=views, max_size=max_size, given_poses=given, poses=how)
     manifest = art.write_scene(ctx.out_dir, scene, ingest)
     from go_pipeline.manifest import schema_problems

@@ -1,0 +1,185 @@
+"""Training-camera rotations from silhouette coherence: a texture-free pose pre-alignment for few views.
+
+With correct cameras, the visual hull carved by every other view covers view ``j``'s mask completely when
+projected into view ``j`` (a visual hull contains the object). A mis-rotated camera carves away part of the
+object, so some of view ``j``'s mask is no longer covered: silhouette coherence (Hernández, Schmitt &
+Cipolla, PAMI 2007). The loss is the uncovered share of every mask:
+
+    L = Σ_j  mean over mask_j pixels of  (1 − max_t Π_{i≠j} m_i(π_i(o_j + t d_j)))
+
+with m_i the mask grown by σ and blurred by σ (smooth gradients and a wider basin, while the true cameras
+still reach full coverage: a blur alone would reward turning cones away from the mask borders), and the
+max over samples along the ray inside the hull's box. Only rotations are corrected: a rotation moves a cone sideways (coverage drops), while
+moving a camera back along its axis fattens its cone and would raise coverage for free, so translations
+are left to the photometric refinement (``coarse.refine_poses``). For a compact object a sideways camera
+shift is mostly a rotation of the view, so the rotations absorb most of a translation error too. View 0 is
+the gauge. Coarse to fine: a few image sizes, each with its own blur.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from go_core.camera import Camera
+from go_core.pose_refine import PoseCorrection
+
+
+@dataclass(frozen=True)
+class SilhouetteAlignSettings:
+    """How the rotations are fitted (``hull.align_poses_*`` params)."""
+
+    sizes: tuple[int, ...] = (64, 128)  # longest image side of each coarse-to-fine level
+    iterations: int = 80  # Adam steps per level
+    samples: int = 64  # samples along each ray inside the box
+    blur: float = 1.0  # Gaussian sigma of the masks, in pixels of the level
+    lr: float = 3e-3  # radians per step, cosine-decayed ×0.1 within a level
+    lr_translation: float = 0.0  # × mean camera distance per step (0: rotations only)
+
+
+@dataclass(frozen=True)
+class SilhouetteAlignResult:
+    cameras: list[Camera]
+    rotations_deg: list[float]  # how far each camera was turned
+    coverage_before: list[float]  # per view: share of its mask covered by the others' hull
+    coverage_after: list[float]
+
+
+def _blurred(mask: np.ndarray, height: int, width: int, sigma: float) -> torch.Tensor:
+    """[1,1,h,w] mask resized (area), grown by σ (so the blur leaves its inside at 1: the true cameras
+    reach nearly full coverage) and blurred with a Gaussian of ``sigma`` pixels."""
+    m = torch.as_tensor(np.asarray(mask, np.float32))[None, None]
+    m = F.interpolate(m, size=(height, width), mode="area")
+    if sigma <= 0:
+        return m
+    grow = max(1, int(math.ceil(sigma)))
+    m = F.max_pool2d(m, 2 * grow + 1, stride=1, padding=grow)
+    radius = max(1, int(math.ceil(3 * sigma)))
+    x = torch.arange(-radius, radius + 1, dtype=torch.float32)
+    k = torch.exp(-0.5 * (x / sigma) ** 2)
+    k = k / k.sum()
+    m = F.conv2d(F.pad(m, (radius, radius, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
+    return F.conv2d(F.pad(m, (0, 0, radius, radius), mode="replicate"), k.view(1, 1, -1, 1))
+
+
+class _Level:
+    """The masks and rays of one coarse-to-fine level."""
+
+    def __init__(self, cameras: list[Camera], masks: list[np.ndarray], size: int, blur: float) -> None:
+        scale = size / max(cameras[0].width, cameras[0].height)
+        self.shapes = [(max(1, round(c.height * scale)), max(1, round(c.width * scale))) for c in cameras]
+        self.masks = [_blurred(m, h, w, blur) for m, (h, w) in zip(masks, self.shapes, strict=True)]
+        self.sharp = [_blurred(m, h, w, 0.0) for m, (h, w) in zip(masks, self.shapes, strict=True)]
+        self.pixels = []  # per view: full-resolution pixel coordinates [R,2] of mask pixels, their weights
+        for cam, sharp, (h, w) in zip(cameras, self.sharp, self.shapes, strict=True):
+            weight = sharp[0, 0].reshape(-1)
+            vv, uu = torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij")
+            uv = torch.stack([(uu + 0.5) * cam.width / w, (vv + 0.5) * cam.height / h], -1).reshape(-1, 2)
+            keep = weight > 0.05
+            self.pixels.append((uv[keep].double(), weight[keep]))
+
+
+def _rays(viewmat: torch.Tensor, K: np.ndarray, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """World origin [3] and unit directions [R,3] of the pixels ``uv`` of a world-to-camera ``viewmat``."""
+    Kinv = torch.as_tensor(np.linalg.inv(K), dtype=viewmat.dtype)
+    d_cam = torch.cat([uv, torch.ones_like(uv[:, :1])], 1) @ Kinv.T
+    R, t = viewmat[:3, :3], viewmat[:3, 3]
+    d = d_cam @ R  # R^T d_cam per row
+    return -(R.T @ t), d / d.norm(dim=1, keepdim=True)
+
+
+def _box_range(origin: torch.Tensor, dirs: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor):
+    """Entry/exit distances [R] of the rays in the box (slab method); exit < entry where missed."""
+    inv = 1.0 / torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
+    t0, t1 = (lo - origin) * inv, (hi - origin) * inv
+    near = torch.minimum(t0, t1).amax(1).clamp_min(0.0)
+    far = torch.maximum(t0, t1).amin(1)
+    return near, far
+
+
+def _sample(mask: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor, cam: Camera, x: torch.Tensor):
+    """Mask values at world points ``x`` [N,3] seen by one camera (0 behind it or outside the image)."""
+    pc = x @ viewmat[:3, :3].T + viewmat[:3, 3]
+    z = pc[:, 2:3]
+    uv = (pc[:, :2] / z.clamp_min(1e-9)) @ K[:2, :2].T + K[:2, 2]
+    grid = torch.stack([uv[:, 0] / cam.width * 2 - 1, uv[:, 1] / cam.height * 2 - 1], -1)
+    v = F.grid_sample(mask, grid.float()[None, None], align_corners=False, padding_mode="zeros")
+    return v[0, 0, 0] * (z[:, 0] > 0)
+
+
+def coverage(
+    cameras: list[Camera],
+    viewmats: torch.Tensor,
+    level: _Level,
+    box: tuple[torch.Tensor, torch.Tensor],
+    samples: int,
+) -> list[torch.Tensor]:
+    """Per view, the weighted mean coverage of its mask by the hull of the other views (1 = coherent)."""
+    Ks = [torch.as_tensor(c.K, dtype=viewmats.dtype) for c in cameras]
+    frac = (torch.arange(samples, dtype=viewmats.dtype) + 0.5) / samples
+    out = []
+    for j, cam in enumerate(cameras):
+        uv, weight = level.pixels[j]
+        origin, dirs = _rays(viewmats[j], cam.K, uv.to(viewmats.dtype))
+        with torch.no_grad():
+            near, far = _box_range(origin, dirs, *box)
+            hit = far > near
+            t = near[:, None] + frac[None] * (far - near).clamp_min(0.0)[:, None]  # [R,S]
+        x = origin + t[..., None] * dirs[:, None, :]  # [R,S,3]
+        occupancy = torch.ones(x.shape[:2], dtype=torch.float32)
+        for i, other in enumerate(cameras):
+            if i != j:
+                occupancy = occupancy * _sample(
+                    level.masks[i], viewmats[i], Ks[i], other, x.reshape(-1, 3)
+                ).view(x.shape[:2])
+        covered = occupancy.amax(1) * hit
+        out.append((covered * weight).sum() / weight.sum().clamp_min(1e-9))
+    return out
+
+
+def align_rotations(
+    cameras: list[Camera],
+    masks: list[np.ndarray],
+    box: tuple[np.ndarray, np.ndarray],
+    settings: SilhouetteAlignSettings = SilhouetteAlignSettings(),
+) -> SilhouetteAlignResult:
+    """Turn every camera but the first about its own centre so the masks agree (module docstring).
+    ``box`` (lo, hi) bounds the object (e.g. ``go_core.hull.hull_bounds`` with every view but one)."""
+    if len(cameras) < 3:
+        raise ValueError(f"silhouette coherence needs at least 3 views, got {len(cameras)}")
+    dtype = torch.float64
+    base = torch.stack([c.viewmat_tensor(dtype=dtype) for c in cameras])
+    lo, hi = (torch.as_tensor(np.asarray(b, np.float64)) for b in box)
+    pad = 0.25 * (hi - lo)  # room for the hull to move while the cameras turn
+    box_t = (lo - pad, hi + pad)
+    corr = PoseCorrection(len(cameras), fixed=(0,), dtype=dtype)
+    scale = float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
+    groups = [{"params": [corr.rotation], "lr": settings.lr}]
+    if settings.lr_translation > 0:
+        groups.append({"params": [corr.translation], "lr": settings.lr_translation * scale})
+    else:
+        corr.translation.requires_grad_(False)
+    optimizer = torch.optim.Adam(groups)
+    base_lrs = [g["lr"] for g in groups]
+    levels = [_Level(cameras, masks, s, settings.blur) for s in settings.sizes]
+    with torch.no_grad():
+        before = [float(c) for c in coverage(cameras, base, levels[-1], box_t, settings.samples)]
+    for level in levels:
+        for it in range(settings.iterations):
+            decay = 0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * it / settings.iterations))
+            for group, lr in zip(optimizer.param_groups, base_lrs, strict=True):
+                group["lr"] = lr * decay
+            cover = coverage(cameras, corr(base), level, box_t, settings.samples)
+            loss = sum(1.0 - c for c in cover) / len(cover)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+    aligned = corr.apply_to(cameras)
+    with torch.no_grad():
+        after = [float(c) for c in coverage(cameras, corr(base), levels[-1], box_t, settings.samples)]
+        turned = [float(np.degrees(np.linalg.norm(r))) for r in (corr.rotation * corr.free).numpy()]
+    return SilhouetteAlignResult(aligned, turned, before, after)
