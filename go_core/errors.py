@@ -30,6 +30,10 @@ class InvalidGaussiansError(GoError):
     """Gaussian parameters the rasterizer cannot render meaningfully (NaN/inf, or scales >= 1e20)."""
 
 
+class CollapsedModelError(GoError):
+    """Optimisation removed almost every Gaussian: the model cannot be the object (a wrong result)."""
+
+
 class EmptyHullError(GoError):
     """The mask frusta do not intersect: the masks do not overlap, the poses are probably wrong."""
 

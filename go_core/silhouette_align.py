@@ -8,12 +8,17 @@ Cipolla, PAMI 2007). The loss is the uncovered share of every mask:
     L = Σ_j  mean over mask_j pixels of  (1 − max_t Π_{i≠j} m_i(π_i(o_j + t d_j)))
 
 with m_i the mask grown by σ and blurred by σ (smooth gradients and a wider basin, while the true cameras
-still reach full coverage: a blur alone would reward turning cones away from the mask borders), and the
-max over samples along the ray inside the hull's box. Only rotations are corrected: a rotation moves a cone sideways (coverage drops), while
-moving a camera back along its axis fattens its cone and would raise coverage for free, so translations
-are left to the photometric refinement (``coarse.refine_poses``). For a compact object a sideways camera
-shift is mostly a rotation of the view, so the rotations absorb most of a translation error too. View 0 is
-the gauge. Coarse to fine: a few image sizes, each with its own blur.
+still reach nearly full coverage: a blur alone rewards turning cones away from the mask borders), and the
+max over samples along the ray inside the hull's box. Only rotations are corrected: moving a camera back
+along its axis fattens its cone and raises coverage for free, so translations are left to the photometric
+refinement (``coarse.refine_poses``); for a compact object a sideways shift of a camera is mostly a turn
+of its view, which the rotation absorbs. View 0 is the gauge. Coarse to fine: 64 then 128 px.
+
+Four silhouettes leave slack (the hull of three views is looser than the object), so this is a
+pre-alignment, not a calibration: on dev/milk with every training camera turned 5° and moved 5 %, the
+reprojection error of the object falls from 17–38 px to 11–17 px (256 px images, after the similarity
+that best maps the truth onto the cameras; benchmarks/pose_refine_dev.py), and from the true cameras it
+wanders by at most 1.1 px (44 CPU s at 256 px, one thread).
 """
 
 from __future__ import annotations

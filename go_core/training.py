@@ -96,6 +96,19 @@ class TrainStats:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def check_not_collapsed(self, share: float = 0.01) -> None:
+        """Raise ``CollapsedModelError`` when fewer than ``share`` of the initial Gaussians survived: pruning
+        emptied the model (seen with opacity resets + opacity decay at 10 000 iterations on a white object
+        on white, docs/coarse.md), and renders of it would be scored as if it were a reconstruction."""
+        if self.final_count < max(1, share * self.initial_count):
+            from go_core.errors import CollapsedModelError
+
+            raise CollapsedModelError(
+                f"the model collapsed: {self.final_count} of {self.initial_count} Gaussians left after "
+                f"{self.iterations} iterations (densify: {self.densify}); pruning removed the object — try "
+                "fewer iterations, coarse.lambda_opacity=0 or coarse.opacity_reset_every=0"
+            )
+
 
 def scene_extent(cameras: list[Camera]) -> float:
     """3DGS 'cameras extent': 1.1 × the largest distance of a camera centre from their mean."""

@@ -53,6 +53,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     )
     if state["bar"] is not None:
         state["bar"].close()
+    stats.check_not_collapsed()  # nothing half-written: the step fails before its artifact
     art.write_gaussians(ctx.out_dir, gaussians)
     write_curves(art.CURVES.path(ctx.out_dir), stats.loss_log)  # loss, train PSNR, Gaussians per logged step
     cameras = [v.camera for v in views]

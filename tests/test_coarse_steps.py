@@ -181,3 +181,42 @@ def test_mask_step_rejects_bad_choices(tmp_path):
         mask.run(
             Ctx(tmp_path, "mask"), inputs, step_params(mask.__name__, {"method": "onnx", "onnx_model": ""})
         )
+
+
+def test_a_collapsed_coarse_model_is_an_error_not_a_result(tmp_path, monkeypatch):
+    """When optimisation leaves almost no Gaussians (pruning never removes the last one, so the loop is
+    stood in for by one that ends with 3 of 500), the step fails with CollapsedModelError and writes no
+    gaussians.npz."""
+    from go_pipeline.steps import coarse, hull, mask
+
+    from go_core.errors import CollapsedModelError
+    from go_core.training import TrainStats
+
+    inputs = {"scene": _scene(tmp_path)}
+    ctx = Ctx(tmp_path, "mask")
+    mask.run(ctx, inputs, step_params(mask.__name__, {"method": "auto"}))
+    inputs["mask"] = ctx.out_dir
+    ctx = Ctx(tmp_path, "hull")
+    hull.run(ctx, inputs, step_params(hull.__name__, {"num_points": 500}))
+    inputs["hull"] = ctx.out_dir
+
+    def collapsing(init, views, config, **kw):
+        return init, TrainStats(iterations=config.iterations, initial_count=len(init), final_count=3)
+
+    monkeypatch.setattr(coarse, "optimize", collapsing)
+    ctx = Ctx(tmp_path, "coarse")
+    params = {"iterations": 12, "schedule_iterations": 0, "checkpoint_every": 0}
+    with pytest.raises(CollapsedModelError, match=r"the model collapsed: 3 of 500 Gaussians left"):
+        coarse.run(ctx, inputs, step_params(coarse.__name__, params))
+    assert not (ctx.out_dir / "gaussians.npz").exists()
+
+
+def test_collapse_threshold():
+    from go_core.errors import CollapsedModelError
+    from go_core.training import TrainStats
+
+    TrainStats(initial_count=20000, final_count=200).check_not_collapsed()  # 1 % left: a (small) model
+    with pytest.raises(CollapsedModelError):
+        TrainStats(initial_count=20000, final_count=199).check_not_collapsed()
+    with pytest.raises(CollapsedModelError):
+        TrainStats(initial_count=5, final_count=0).check_not_collapsed()
