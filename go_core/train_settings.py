@@ -108,7 +108,8 @@ class RegularizerConfig:
 class PoseRefineConfig:
     """Joint pose refinement (go_core.pose_refine.JointPoses): a rotation + translation correction per
     training view optimised with the Gaussians through the rasterizer's viewmat gradients. The first
-    training view is the gauge (kept as given). Off for posed scenes; on in ``--profile cf``."""
+    training view is the gauge (kept as given). Off by default (after ``hull.align_poses`` it lowered
+    test PSNR on the dev scenes, docs/coarse.md)."""
 
     refine_poses: bool = setting(False, doc="optimise a pose correction per training view (first view fixed)")
     pose_lr_rotation: float = setting(0.003, gt=0, doc="Adam lr of the rotations (rad), cosine-decayed x0.1")
