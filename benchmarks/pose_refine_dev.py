@@ -106,8 +106,8 @@ def run_case(scene_dir: Path, workdir: Path, overrides: dict) -> dict:
     summary = run_pipeline(scene_dir, workdir=workdir, overrides=overrides, until="eval", quiet=True)
     metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
     coarse_dir = summary.step("coarse").artifact_dir
-    manifest = json.loads((coarse_dir / "manifest.json").read_text())
     steps = {s.name: json.loads((s.artifact_dir / "manifest.json").read_text()) for s in summary.steps}
+    manifest = steps["coarse"]
     return {
         **{k: metrics["mean"][k] for k in ("psnr", "ssim", "lpips_star")},
         "model": metrics["model"],

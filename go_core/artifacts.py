@@ -121,6 +121,20 @@ def cameras_aligned(folder: str | Path) -> bool:
     return CAMERAS.path(folder).is_file() and bool(read_json(folder, CAMERAS).get("aligned", False))
 
 
+def read_fitted_cameras(folder: str | Path, given: list[Camera]) -> list[Camera]:
+    """The training cameras ``folder``'s ``cameras.json`` holds (hull: aligned; coarse: the ones the model
+    was fitted with), else ``given`` (a step that moved nothing, or a custom step, writes none); a
+    SceneError when they are not the same views in the same order."""
+    if not CAMERAS.path(folder).is_file():
+        return list(given)
+    fitted = read_cameras(folder)
+    if [c.name for c in fitted] != [c.name for c in given]:
+        from go_core.errors import SceneError
+
+        raise SceneError("the cameras are not the scene's training views", CAMERAS.path(folder))
+    return fitted
+
+
 def read_cameras(folder: str | Path) -> list[Camera]:
     """The cameras of ``cameras.json``, in training-view order."""
     from go_core.scene.artifact import camera_from_json

@@ -36,14 +36,13 @@ from go_core.pose_refine import PoseCorrection
 
 @dataclass(frozen=True)
 class SilhouetteAlignSettings:
-    """How the rotations are fitted (``hull.align_poses_*`` params)."""
+    """How the rotations are fitted (the hull step sets ``iterations`` from ``hull.align_iterations``)."""
 
     sizes: tuple[int, ...] = (64, 128)  # longest image side of each coarse-to-fine level
     iterations: int = 80  # Adam steps per level
     samples: int = 64  # samples along each ray inside the box
     blur: float = 1.0  # Gaussian sigma of the masks, in pixels of the level
     lr: float = 3e-3  # radians per step, cosine-decayed ×0.1 within a level
-    lr_translation: float = 0.0  # × mean camera distance per step (0: rotations only)
 
 
 @dataclass(frozen=True)
@@ -162,22 +161,15 @@ def align_rotations(
     pad = 0.25 * (hi - lo)  # room for the hull to move while the cameras turn
     box_t = (lo - pad, hi + pad)
     corr = PoseCorrection(len(cameras), fixed=(0,), dtype=dtype)
-    scale = float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
-    groups = [{"params": [corr.rotation], "lr": settings.lr}]
-    if settings.lr_translation > 0:
-        groups.append({"params": [corr.translation], "lr": settings.lr_translation * scale})
-    else:
-        corr.translation.requires_grad_(False)
-    optimizer = torch.optim.Adam(groups)
-    base_lrs = [g["lr"] for g in groups]
+    corr.translation.requires_grad_(False)
+    optimizer = torch.optim.Adam([corr.rotation], lr=settings.lr)
     levels = [_Level(cameras, masks, s, settings.blur) for s in settings.sizes]
     with torch.no_grad():
         before = [float(c) for c in coverage(cameras, base, levels[-1], box_t, settings.samples)]
     for level in levels:
         for it in range(settings.iterations):
             decay = 0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * it / settings.iterations))
-            for group, lr in zip(optimizer.param_groups, base_lrs, strict=True):
-                group["lr"] = lr * decay
+            optimizer.param_groups[0]["lr"] = settings.lr * decay
             cover = coverage(cameras, corr(base), level, box_t, settings.samples)
             loss = sum(1.0 - c for c in cover) / len(cover)
             optimizer.zero_grad(set_to_none=True)

@@ -24,6 +24,13 @@ if TYPE_CHECKING:
     from go_pipeline.steps.params import CoarseParams
 
 
+def _poses_summary(aligned: bool, refined: bool) -> str:
+    """``coarse.json`` "poses": "as given", "refined", "aligned, not refined" or "aligned, refined"."""
+    if not aligned:
+        return "refined" if refined else "as given"
+    return "aligned, refined" if refined else "aligned, not refined"
+
+
 def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     t0 = time.process_time()
     scene = art.read_scene(inputs["scene"])
@@ -33,7 +40,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     if depths is not None and len(depths) != len(scene.train):
         depths = None
     aligned = art.cameras_aligned(inputs["hull"])  # hull.align_poses: start from the hull's cameras
-    cameras = art.read_cameras(inputs["hull"]) if aligned else scene.train_cameras
+    cameras = art.read_fitted_cameras(inputs["hull"], scene.train_cameras)
     views = [
         TrainView.from_arrays(c, v.image, m, depths[i] if depths is not None else None)
         for i, (v, c, m) in enumerate(zip(scene.train, cameras, masks, strict=True))
@@ -69,8 +76,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
         "densify": stats.densify,
         "depth_loss": "on" if stats.depth_loss_used else "off (no depth prior)" if depths is None else "off",
         "iterations": stats.iterations,
-        "poses": ("aligned, " if aligned else "")
-        + ("refined" if stats.pose_corrections is not None else "as given" if not aligned else "not refined"),
+        "poses": _poses_summary(aligned, refined=stats.pose_corrections is not None),
     }
     # coarse.json stays byte-identical between a resumed and an uninterrupted run: timing goes to the record
     art.write_json(

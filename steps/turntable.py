@@ -81,8 +81,7 @@ def run(ctx, inputs: dict[str, Path], params: TurntableParams) -> None:
     path_frames, max_size = params.path_frames, params.max_size
     g, source = final_model(inputs)
     train_cams, _ = art.read_scene_cameras(inputs["scene"])
-    if art.CAMERAS.path(inputs["coarse"]).is_file():  # aligned / refined: the frame the model lives in
-        train_cams = art.read_cameras(inputs["coarse"])
+    train_cams = art.read_fitted_cameras(inputs["coarse"], train_cams)  # the frame the model lives in
     cams = turntable_cameras(train_cams, params.frames, max_size)
     bg = torch.tensor(params.background, dtype=torch.float32)
     backend = params.backend

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from go_core.alignment import Similarity
-from go_core.camera import Camera
+from go_core.camera import Camera, look_at_point
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket"
 TURN = Rotation.from_euler("xyz", [20, -35, 50], degrees=True).as_matrix()
@@ -109,6 +109,15 @@ def test_initial_poses_replace_the_training_poses_and_keep_the_given_ones(tmp_pa
     assert metrics["poses"]["similarity_scale"] == pytest.approx(PLANTED.scale, rel=1e-6)  # not refined
 
 
+def _scene_step_with_initial_poses(scene_dir: Path, workdir: Path, capsys) -> tuple[int, str]:
+    """``go-pipeline run SCENE --set scene.poses=initial --until scene``: exit code and stderr."""
+    from go_pipeline.cli import main
+
+    argv = ["run", str(scene_dir), "--workdir", str(workdir), "--set", "scene.poses=initial"]
+    rc = main([*argv, "--until", "scene"])
+    return rc, capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("frames", "message"),
     [
@@ -122,43 +131,15 @@ def test_initial_poses_replace_the_training_poses_and_keep_the_given_ones(tmp_pa
     ],
 )
 def test_bad_initial_poses_are_one_error_naming_the_file(tmp_path, capsys, frames, message):
-    from go_pipeline.cli import main
-
     scene_dir = _copy_with_initial_poses(tmp_path, frames)
-    rc = main(
-        [
-            "run",
-            str(scene_dir),
-            "--workdir",
-            str(tmp_path / "w"),
-            "--set",
-            "scene.poses=initial",
-            "--until",
-            "scene",
-        ]
-    )
-    err = capsys.readouterr().err
+    rc, err = _scene_step_with_initial_poses(scene_dir, tmp_path / "w", capsys)
     assert rc != 0
     assert "initial_poses.json" in err and message in err
     assert "Traceback" not in err
 
 
 def test_missing_initial_poses_file_is_an_error(tmp_path, capsys):
-    from go_pipeline.cli import main
-
-    rc = main(
-        [
-            "run",
-            str(EXAMPLE),
-            "--workdir",
-            str(tmp_path / "w"),
-            "--set",
-            "scene.poses=initial",
-            "--until",
-            "scene",
-        ]
-    )
-    err = capsys.readouterr().err
+    rc, err = _scene_step_with_initial_poses(EXAMPLE, tmp_path / "w", capsys)
     assert rc != 0 and "scene.poses=initial needs initial_poses.json" in err
 
 
@@ -204,7 +185,7 @@ def test_hull_alignment_turns_perturbed_cameras_back_and_coarse_starts_from_them
     steps = {s.name: s for s in summary.steps}
     start = art.read_scene(steps["scene"].artifact_dir).train_cameras
     aligned = art.read_cameras(steps["hull"].artifact_dir)
-    points = np.random.default_rng(0).normal(size=(400, 3)) * 0.2 + look_at_centre(truth)
+    points = np.random.default_rng(0).normal(size=(400, 3)) * 0.2 + look_at_point(truth)
 
     def error_px(cams):
         sim = similarity_from_cameras(truth, cams)
@@ -223,9 +204,3 @@ def test_hull_alignment_turns_perturbed_cameras_back_and_coarse_starts_from_them
     np.testing.assert_allclose(coarse["cameras"][1]["world_to_cam"], aligned[1].world_to_cam, atol=1e-12)
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
     assert metrics["poses"]["cf"] is True
-
-
-def look_at_centre(cameras):
-    from go_core.camera import look_at_point
-
-    return look_at_point(cameras)

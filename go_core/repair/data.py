@@ -34,14 +34,9 @@ def training_views(
         masks = art.read_masks(mask_dir, len(scene.train))
     else:
         masks = [v.mask for v in scene.train]
-    cameras = [v.camera for v in scene.train]
-    if coarse_dir is not None and art.CAMERAS.path(coarse_dir).is_file():  # a custom coarse may not write it
-        fitted = art.read_cameras(coarse_dir)
-        if [c.name for c in fitted] != [c.name for c in cameras]:
-            raise SceneError(
-                "the coarse cameras are not the scene's training views", art.CAMERAS.path(coarse_dir)
-            )
-        cameras = fitted
+    cameras = scene.train_cameras
+    if coarse_dir is not None:
+        cameras = art.read_fitted_cameras(coarse_dir, cameras)
     views = []
     for v, mask, cam in zip(scene.train, masks, cameras, strict=True):
         if mask is None:
