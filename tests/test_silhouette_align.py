@@ -73,15 +73,14 @@ def scene():
 def test_planted_rotations_are_recovered(scene):
     truth, masks = scene
     rng = np.random.default_rng(0)
-    start = [truth[0]] + [_turned(c, 5.0, rng) for c in truth[1:]]
+    start = [_turned(c, 5.0, rng) for c in truth]  # the first view too: with the centres held, no gauge
     box = hull_bounds(start, masks, min_views=len(start) - 1)
     res = align_rotations(
         start, masks, box, SilhouetteAlignSettings(sizes=(32, 64), iterations=60, samples=48)
     )
     before, after = _reprojection_px(start, truth), _reprojection_px(res.cameras, truth)
-    assert before[0] == 0 and after[0] == 0  # the gauge view is never moved
-    assert before[1:].min() > 2.0  # the planted error is pixels (a roll moves points less)
-    assert after[1:].max() < 0.3 * before[1:].mean(), (before, after)
+    assert before.min() > 2.0  # the planted error is pixels (a roll moves points less)
+    assert after.max() < 0.3 * before.mean(), (before, after)
     assert min(res.coverage_after) > min(res.coverage_before) + 0.05
 
 
