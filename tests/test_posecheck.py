@@ -157,6 +157,21 @@ def test_blame_logic_for_disagreeing_pairs():
     )
 
 
+def test_set_wide_disagreement_is_no_evidence_but_one_wrong_camera_is():
+    from go_core.posecheck import matches_disagree_set_wide
+
+    pairs = [(i, j) for i in range(6) for j in range(i + 1, 6)]
+    # one wrong camera (3) among 6: only its 5 of 15 pairs disagree
+    assert not matches_disagree_set_wide(6, {p: 3 not in p for p in pairs})
+    # four views, camera 3 wrong: 3 of 5 pairs disagree, but without camera 3 the rest agree
+    few = [(0, 1), (1, 2), (0, 3), (1, 3), (2, 3)]
+    assert not matches_disagree_set_wide(4, {p: 3 not in p for p in few})
+    # a symmetric object matched to itself: disagreement everywhere, no single view explains it
+    assert matches_disagree_set_wide(6, {p: p in {(0, 1), (2, 3), (4, 5)} for p in pairs})
+    # ... but not when as many pairs agree as disagree
+    assert not matches_disagree_set_wide(6, {p: k < 8 for k, p in enumerate(pairs)})
+
+
 @pytest.mark.parametrize("scene_name", ["milk", "plate"])
 def test_four_training_views_check_what_they_can(shared_data, scene_name):
     """`poses --split train`: 4 views 83-140° apart. milk's SIFT matches across them are repeated texture
