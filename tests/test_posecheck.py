@@ -168,7 +168,7 @@ def test_set_wide_disagreement_is_no_evidence_but_one_wrong_camera_is():
     assert not matches_disagree_set_wide(4, {p: 3 not in p for p in few})
     # a symmetric object matched to itself: disagreement everywhere, no single view explains it
     assert matches_disagree_set_wide(6, {p: p in {(0, 1), (2, 3), (4, 5)} for p in pairs})
-    # ... but not when as many pairs agree as disagree
+    # ... but not when more pairs agree (8 of 15) than disagree
     assert not matches_disagree_set_wide(6, {p: k < 8 for k, p in enumerate(pairs)})
 
 
