@@ -82,6 +82,13 @@ def coarse_params(profile: str | None, iterations: int) -> dict:
     return {**load_pipeline().resolve_params(profile=profile)["coarse"], "iterations": iterations}
 
 
+def hull_params(profile: str | None) -> dict:
+    """The hull step's params from pipeline.yaml (with ``profile``): the init's point count and opacity."""
+    from go_pipeline.pipeline import load_pipeline
+
+    return dict(load_pipeline().resolve_params(profile=profile)["hull"])
+
+
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
     return 10.0 * math.log10(1.0 / max(mse, 1e-12))
@@ -143,22 +150,33 @@ def run_variant(
     extra: dict,
     random_points: int = 20_000,
     base: dict | None = None,
+    hull: dict | None = None,
 ) -> dict:
-    """One variant on one scene; ``base`` the coarse params (default: pipeline.yaml's defaults)."""
+    """One variant on one scene; ``base`` the coarse params and ``hull`` the hull step's (default:
+    pipeline.yaml's defaults)."""
+    hull = hull or hull_params(None)
     spec = variant_spec(name)
     cams = scene.train_cameras
     masks = [v.mask for v in scene.train]
     images = [v.image for v in scene.train]
     t0 = time.process_time()
     if spec["init"] == "hull":
-        res = visual_hull(cams, masks, images, num_points=20_000, seed=seed)
+        res = visual_hull(
+            cams,
+            masks,
+            images,
+            num_points=hull["num_points"],
+            all_but_one=hull["all_but_one"],
+            threshold=hull["mask_threshold"],
+            seed=seed,
+        )
         pts, cols = res.points, res.colors
     else:
         from go_pipeline.steps.hull import random_box
 
         lo, hi = random_box(cams)
         pts, cols = random_init(lo, hi, random_points, seed=seed)
-    init = points_to_gaussians(pts, cols, opacity=0.1)
+    init = points_to_gaussians(pts, cols, opacity=hull["opacity"])
     t_init = time.process_time() - t0
     params = {
         **(base or coarse_params(None, iterations)),
@@ -274,6 +292,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: leave)")
     ap.add_argument("--set", nargs="*", default=[], help="extra coarse params, e.g. max_gaussians=50000")
+    ap.add_argument("--hull-set", nargs="*", default=[], help="hull params, e.g. num_points=10000")
     ap.add_argument(
         "--random-points",
         type=int,
@@ -296,6 +315,10 @@ def main(argv=None) -> int:
     import yaml
 
     extra = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
+    hull = {
+        **hull_params(args.profile),
+        **{k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.hull_set)},
+    }
     scenes = args.scenes or sorted(
         p.name for p in args.data.iterdir() if (p / "transforms_train.json").exists()
     )
@@ -306,6 +329,7 @@ def main(argv=None) -> int:
         "schedule_scaling": "go_core.train_settings.CoarseConfig.scaled_schedule",
         "max_size": args.max_size,
         "random_points": args.random_points,
+        "hull": {k: hull[k] for k in ("num_points", "opacity")},
         "profile": args.profile or "default",
         "torch_threads": torch.get_num_threads(),
         "machine": platform.processor() or platform.machine(),
@@ -318,7 +342,7 @@ def main(argv=None) -> int:
         scene = load_scene(args.data / name, max_size=args.max_size)
         result["scenes"][name] = {"resolution": [scene.train[0].camera.width, scene.train[0].camera.height]}
         for variant in args.variants:
-            r = run_variant(scene, variant, args.iterations, args.seed, extra, args.random_points, base)
+            r = run_variant(scene, variant, args.iterations, args.seed, extra, args.random_points, base, hull)
             result["scenes"][name][variant] = r
             print(
                 f"{name:14s} {variant:12s} PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  "
