@@ -135,11 +135,11 @@ SCHEDULE_PARAMS: tuple[str, ...] = (
 
 @dataclass
 class CoarseConfig(PoseRefineConfig, RegularizerConfig, FloaterConfig, DensifyConfig, LearningRates):
-    """Coarse 3DGS settings: the paper's / the authors' code's, except the budget (3000 scaled iterations)
+    """Coarse 3DGS settings: the paper's / the authors' code's, except the budget (2500 scaled iterations)
     and the two regularisers measured better (DropGaussian, opacity decay; docs/coarse.md). The paper's:
     ``--profile paper``."""
 
-    iterations: int = setting(3000, ge=0, doc="the budget (paper: 10000; schedules scale with it)")
+    iterations: int = setting(2500, ge=0, doc="the budget (paper: 10000; schedules scale with it)")
     schedule_iterations: int = setting(10000, ge=0, doc="the length schedules are written for")
     opacity_reset_min_interval: int = setting(200, ge=0, doc="shorter scaled reset period: none")
     sh_degree: int = setting(2, ge=0, le=3, doc="raised by one every sh_increase_every iterations")
