@@ -75,18 +75,28 @@ def variant_spec(name: str) -> dict:
     return {"init": init, "params": {k: v for p in parts for k, v in p["params"].items()}}
 
 
-def coarse_params(profile: str | None, iterations: int) -> dict:
-    """The coarse step's params from pipeline.yaml (with ``profile``), at the budget ``iterations``."""
+def step_params_from_yaml(step: str, profile: str | None) -> dict:
+    """One step's resolved params from pipeline.yaml (with ``profile``)."""
     from go_pipeline.pipeline import load_pipeline
 
-    return {**load_pipeline().resolve_params(profile=profile)["coarse"], "iterations": iterations}
+    return dict(load_pipeline().resolve_params(profile=profile)[step])
+
+
+def coarse_params(profile: str | None, iterations: int) -> dict:
+    """The coarse step's params from pipeline.yaml (with ``profile``), at the budget ``iterations``."""
+    return {**step_params_from_yaml("coarse", profile), "iterations": iterations}
 
 
 def hull_params(profile: str | None) -> dict:
-    """The hull step's params from pipeline.yaml (with ``profile``): the init's point count and opacity."""
-    from go_pipeline.pipeline import load_pipeline
+    """The hull step's params from pipeline.yaml (with ``profile``): init points, carving, opacity."""
+    return step_params_from_yaml("hull", profile)
 
-    return dict(load_pipeline().resolve_params(profile=profile)["hull"])
+
+def parse_overrides(items: list[str]) -> dict:
+    """``["name=value", ...]`` (YAML values, parsed as the CLI's ``--set``) → {name: value}."""
+    from go_pipeline.pipeline import parse_set_argument
+
+    return dict(parse_set_argument(item) for item in items)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -312,13 +322,8 @@ def main(argv=None) -> int:
         return 0
     if args.threads:
         torch.set_num_threads(args.threads)
-    import yaml
-
-    extra = {k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.set)}
-    hull = {
-        **hull_params(args.profile),
-        **{k: yaml.safe_load(v) for k, v in (s.split("=", 1) for s in args.hull_set)},
-    }
+    extra = parse_overrides(args.set)
+    hull = {**hull_params(args.profile), **parse_overrides(args.hull_set)}
     scenes = args.scenes or sorted(
         p.name for p in args.data.iterdir() if (p / "transforms_train.json").exists()
     )

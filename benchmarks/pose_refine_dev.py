@@ -121,9 +121,9 @@ def run_case(scene_dir: Path, workdir: Path, overrides: dict) -> dict:
 
 
 def _parse(items: list[str]) -> dict:
-    import yaml
+    from go_pipeline.pipeline import parse_set_argument
 
-    return {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in items)}
+    return dict(parse_set_argument(item) for item in items)
 
 
 def main() -> None:
