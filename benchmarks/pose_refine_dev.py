@@ -142,6 +142,12 @@ def main() -> None:
         "coarse.refine_poses, aligned with hull.align_poses, aligned_refined with both)",
     )
     ap.add_argument("--no-exact", action="store_true", help="skip the exact run with given poses")
+    ap.add_argument(
+        "--reference",
+        type=Path,
+        help="take exact_cf from this earlier result JSON instead of rerunning it (its overrides must equal "
+        "this run's --set; exact_cf never aligns or refines, so a change there leaves it as it was)",
+    )
     ap.add_argument("--seed", type=int, default=0, help="seed of the perturbations")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
@@ -163,6 +169,14 @@ def main() -> None:
         "perturbed and exact_cf runs evaluated with the CF protocol; coarse only",
         "scenes": {},
     }
+    reference = {}
+    if args.reference:
+        ref = json.loads(args.reference.read_text())
+        if ref.get("overrides") != common:
+            theirs = ref.get("overrides")
+            raise SystemExit(f"{args.reference}: its overrides {theirs} differ from this run's {common}")
+        reference = {n: e["exact_cf"] for n, e in ref["scenes"].items() if "exact_cf" in e}
+        result["exact_cf_from"] = str(args.reference)
     if args.out.exists():  # resume: keep scenes measured by an earlier invocation
         result["scenes"] = json.loads(args.out.read_text()).get("scenes", {})
     for name in args.scenes:
@@ -173,10 +187,13 @@ def main() -> None:
         if not args.no_exact:
             entry["exact"] = run_case(src, args.workroot / name / "exact", common)
             entry["exact"].pop("cameras")
-        copy = args.workroot / name / "scene_exact"
-        perturbed_copy(src, copy, 0.0, 0.0, args.seed)
-        entry["exact_cf"] = run_case(copy, args.workroot / name / "exact_cf", initial)
-        entry["exact_cf"].pop("cameras")
+        if name in reference:
+            entry["exact_cf"] = reference[name]
+        else:
+            copy = args.workroot / name / "scene_exact"
+            perturbed_copy(src, copy, 0.0, 0.0, args.seed)
+            entry["exact_cf"] = run_case(copy, args.workroot / name / "exact_cf", initial)
+            entry["exact_cf"].pop("cameras")
         print(name, "exact_cf", entry["exact_cf"]["psnr"], flush=True)
         for level in args.levels:
             degrees, shift = LEVELS[level]

@@ -1,4 +1,4 @@
-"""Training-camera rotations from silhouette coherence: a texture-free pose pre-alignment for few views.
+"""Training-camera poses from silhouette coherence: a texture-free pose pre-alignment for few views.
 
 With correct cameras, the visual hull carved by every other view covers view ``j``'s mask completely when
 projected into view ``j`` (a visual hull contains the object). A mis-rotated camera carves away part of the
@@ -9,22 +9,26 @@ Cipolla, PAMI 2007). The loss is the uncovered share of every mask:
 
 with m_i the mask grown by σ and blurred by σ (smooth gradients and a wider basin, while the true cameras
 still reach nearly full coverage: a blur alone rewards turning cones away from the mask borders), and the
-max over samples along the ray inside the hull's box. Only rotations are corrected: moving a camera back
-along its axis fattens its cone and raises coverage for free, so translations are left to the photometric
-refinement (``coarse.refine_poses``); for a compact object a sideways shift of a camera is mostly a turn
-of its view, which the rotation absorbs. Coarse to fine: 64 then 128 px.
+max over samples along the ray inside the hull's box.
 
-Every camera turns, the first included. With the centres held, the fit has no gauge: a common turn of all
-cameras about their own centres is not a similarity of the scene (it reshapes the hull), so there is one
-best set of rotations. Holding one view fixed, as a gauge would be for full poses, keeps that view's own
-rotation error, which the others can only partly compensate by turning: on the 5 dev scenes with every
-training camera turned 5° and moved 5 %, the mean reprojection error of the object after the best
-similarity falls from 24–37 px to 8–13 px with every view free, and only to 13–23 px with view 0 fixed
-(256 px images; benchmarks/pose_refine_dev.py, docs/coarse.md).
+Rotations and centres are corrected. Coverage alone would let a camera move back for free (a farther
+camera's cone is fatter and carves less), and with the centres free every similarity of all cameras leaves
+the coverage unchanged; both are held by a prior on each centre's move, ``centre_sigma`` × the mean camera
+distance (a move of one sigma costs as much as ``PRIOR_WEIGHT`` of a mask left uncovered). On the 5 dev
+scenes with every training camera turned 5° and moved 5 % of its distance (256 px images), the mean
+reprojection error of the object after the best similarity falls from 24–37 px to 4.5–8.3 px (5.8 px on
+average) with the centres free, and only to 7.8–13.3 px (9.8 px) with the centres held
+(``centre_sigma = 0``: rotations only); more steps per level let the flat plate drift (8.3 → 11.9 px).
+
+Every camera moves, the first included. Holding one view fixed, as a gauge would be for full poses, keeps
+that view's own error, which the others can only partly compensate (with the centres held, on the dev
+scenes above: 13–23 px with view 0 fixed, 8–13 px with every view free). An epipolar tangency term
+(frontier points: the two planes through a baseline that graze the object must be the extreme epipolar
+planes of both masks) was measured as an addition and changed the mean by < 0.1 px, so it is not here.
 
 Four silhouettes leave slack (the hull of three views is looser than the object), so this is a
-pre-alignment, not a calibration: more iterations or a finer level do not lower the error further (the
-coverage already matches the true cameras' to 0.2 %). ~45 CPU s at 256 px, one thread.
+pre-alignment, not a calibration: the aligned cameras' coverage matches the true cameras' to 0.2 %.
+~50 CPU s at 256 px, one thread (benchmarks/pose_refine_dev.py, docs/coarse.md).
 """
 
 from __future__ import annotations
@@ -39,22 +43,27 @@ import torch.nn.functional as F
 from go_core.camera import Camera
 from go_core.pose_refine import PoseCorrection
 
+PRIOR_WEIGHT = 1e-3  # the cost of a centre moved by one centre_sigma, in shares of a mask left uncovered
+
 
 @dataclass(frozen=True)
 class SilhouetteAlignSettings:
-    """How the rotations are fitted (the hull step sets ``iterations`` from ``hull.align_iterations``)."""
+    """How the cameras are fitted (the hull step sets ``iterations`` and ``centre_sigma`` from
+    ``hull.align_iterations`` and ``hull.align_centre_sigma``)."""
 
     sizes: tuple[int, ...] = (64, 128)  # longest image side of each coarse-to-fine level
     iterations: int = 80  # Adam steps per level
     samples: int = 64  # samples along each ray inside the box
     blur: float = 1.0  # Gaussian sigma of the masks, in pixels of the level
-    lr: float = 3e-3  # radians per step, cosine-decayed ×0.1 within a level
+    lr: float = 3e-3  # radians per step (centres: × the mean camera distance), cosine-decayed ×0.1 per level
+    centre_sigma: float = 0.05  # prior on each centre's move, × the mean camera distance; 0: centres held
 
 
 @dataclass(frozen=True)
 class SilhouetteAlignResult:
     cameras: list[Camera]
     rotations_deg: list[float]  # how far each camera was turned
+    moved: list[float]  # how far each centre moved, × the mean camera distance
     coverage_before: list[float]  # per view: share of its mask covered by the others' hull
     coverage_after: list[float]
 
@@ -151,13 +160,13 @@ def coverage(
     return out
 
 
-def align_rotations(
+def align_cameras(
     cameras: list[Camera],
     masks: list[np.ndarray],
     box: tuple[np.ndarray, np.ndarray],
     settings: SilhouetteAlignSettings = SilhouetteAlignSettings(),
 ) -> SilhouetteAlignResult:
-    """Turn every camera about its own centre so the masks agree (module docstring).
+    """Turn (and with ``settings.centre_sigma`` > 0 move) every camera so the masks agree (module docstring).
     ``box`` (lo, hi) bounds the object (e.g. ``go_core.hull.hull_bounds`` with every view but one)."""
     if len(cameras) < 3:
         raise ValueError(f"silhouette coherence needs at least 3 views, got {len(cameras)}")
@@ -166,23 +175,34 @@ def align_rotations(
     lo, hi = (torch.as_tensor(np.asarray(b, np.float64)) for b in box)
     pad = 0.25 * (hi - lo)  # room for the hull to move while the cameras turn
     box_t = (lo - pad, hi + pad)
-    corr = PoseCorrection(len(cameras), dtype=dtype)  # every view turns: no gauge (module docstring)
-    corr.translation.requires_grad_(False)
-    optimizer = torch.optim.Adam([corr.rotation], lr=settings.lr)
+    corr = PoseCorrection(len(cameras), dtype=dtype)  # every view moves (module docstring)
+    distance = float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
+    groups = [{"params": [corr.rotation], "lr": settings.lr, "base_lr": settings.lr}]
+    if settings.centre_sigma > 0:
+        lr = settings.lr * distance
+        groups.append({"params": [corr.translation], "lr": lr, "base_lr": lr})
+    else:
+        corr.translation.requires_grad_(False)
+    optimizer = torch.optim.Adam(groups)
     levels = [_Level(cameras, masks, s, settings.blur) for s in settings.sizes]
     with torch.no_grad():
         before = [float(c) for c in coverage(cameras, base, levels[-1], box_t, settings.samples)]
     for level in levels:
         for it in range(settings.iterations):
             decay = 0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * it / settings.iterations))
-            optimizer.param_groups[0]["lr"] = settings.lr * decay
+            for group in optimizer.param_groups:
+                group["lr"] = group["base_lr"] * decay
             cover = coverage(cameras, corr(base), level, box_t, settings.samples)
             loss = sum(1.0 - c for c in cover) / len(cover)
+            if settings.centre_sigma > 0:  # |τ| is the centre's move (camera-side correction)
+                moved = corr.translation / (settings.centre_sigma * distance)
+                loss = loss + PRIOR_WEIGHT * moved.pow(2).sum(1).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
     aligned = corr.apply_to(cameras)
     with torch.no_grad():
         after = [float(c) for c in coverage(cameras, corr(base), levels[-1], box_t, settings.samples)]
-        turned = [float(np.degrees(np.linalg.norm(r))) for r in (corr.rotation * corr.free).numpy()]
-    return SilhouetteAlignResult(aligned, turned, before, after)
+        turned = [float(np.degrees(np.linalg.norm(r))) for r in corr.rotation.numpy()]
+        moved = [float(np.linalg.norm(t)) / distance for t in corr.translation.numpy()]
+    return SilhouetteAlignResult(aligned, turned, moved, before, after)

@@ -3,8 +3,9 @@ vanilla-3DGS ablation (``init: random``), uniformly random points with random co
 cameras' look-at point whose size follows from the cameras' field of view (so no mask information is used).
 
 Outputs ``gaussians.npz`` (go_core.gaussians) and ``hull.json`` (point count, bounding box, volume estimate);
-with ``align_poses`` first turns the training cameras until their silhouettes agree (go_core.silhouette_align:
-poses from another source are rarely exact) and writes them as ``cameras.json``, which coarse starts from.
+with ``align_poses`` first turns and moves the training cameras until their silhouettes agree
+(go_core.silhouette_align: poses from another source are rarely exact) and writes them as ``cameras.json``,
+which coarse starts from.
 """
 
 from __future__ import annotations
@@ -39,22 +40,26 @@ def _aligned_cameras(ctx, cams, masks, params: HullParams, info: dict):
     written as ``cameras.json`` for coarse; coverage before/after and the turns go to ``hull.json``."""
     from go_core.errors import SceneError
     from go_core.hull import hull_bounds
-    from go_core.silhouette_align import SilhouetteAlignSettings, align_rotations
+    from go_core.silhouette_align import SilhouetteAlignSettings, align_cameras
 
     if len(cams) < 3:
         raise SceneError(f"hull.align_poses needs at least 3 training views, the scene has {len(cams)}")
     box = hull_bounds(cams, masks, min_views=len(cams) - 1, threshold=params.mask_threshold)
-    settings = SilhouetteAlignSettings(iterations=params.align_iterations)
-    res = align_rotations(cams, masks, box, settings)
+    settings = SilhouetteAlignSettings(
+        iterations=params.align_iterations, centre_sigma=params.align_centre_sigma
+    )
+    res = align_cameras(cams, masks, box, settings)
     art.write_cameras(ctx.out_dir, res.cameras, aligned=True)
     info["aligned"] = {
         "turned_deg": [round(x, 4) for x in res.rotations_deg],
+        "moved": [round(x, 5) for x in res.moved],
         "coverage_before": [round(x, 4) for x in res.coverage_before],
         "coverage_after": [round(x, 4) for x in res.coverage_after],
     }
     ctx.log.info(
-        "hull: cameras turned by %s° (silhouette coverage %.3f → %.3f)",
+        "hull: cameras turned by %s° and moved by %s %% of their distance (silhouette coverage %.3f → %.3f)",
         ", ".join(f"{x:.2f}" for x in res.rotations_deg),
+        ", ".join(f"{100 * x:.1f}" for x in res.moved),
         min(res.coverage_before),
         min(res.coverage_after),
     )

@@ -64,9 +64,12 @@ class HullParams:
     opacity: float = setting(0.1, gt=0, lt=1, doc="initial opacity of every Gaussian")
     align_poses: bool = setting(
         False,
-        doc="turn the training cameras until their silhouettes agree before carving (on in --profile cf)",
+        doc="turn and move the training cameras until their silhouettes agree before carving (--profile cf)",
     )
     align_iterations: int = setting(80, ge=1, doc="align_poses: Adam steps per coarse-to-fine level")
+    align_centre_sigma: float = setting(
+        0.05, ge=0, doc="align_poses: prior on each camera centre's move, x mean camera distance (0: held)"
+    )
 
 
 @dataclass
