@@ -62,6 +62,12 @@ class PoseCorrection(torch.nn.Module):
         return [Camera(c.name, c.width, c.height, c.K, D[i] @ c.world_to_cam) for i, c in enumerate(cameras)]
 
 
+def mean_camera_distance(cameras: list[Camera]) -> float:
+    """The cameras' mean distance from the world origin (1 if all sit on it): the scale of pose steps and
+    of centre priors, so they behave the same at any scene scale."""
+    return float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
+
+
 def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle between the rotations of two world-to-camera matrices."""
     r = a[:3, :3] @ b[:3, :3].T
@@ -135,7 +141,7 @@ class JointPoses:
     ) -> None:
         self.cameras = list(cameras)
         self.correction = PoseCorrection(len(cameras), fixed=(0,))
-        scale = float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
+        scale = mean_camera_distance(cameras)
         self.base_lrs = (float(lr_rotation), float(lr_translation) * scale)
         self.optimizer = torch.optim.Adam(
             [

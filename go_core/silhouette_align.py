@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 
 from go_core.camera import Camera
-from go_core.pose_refine import PoseCorrection
+from go_core.pose_refine import PoseCorrection, mean_camera_distance
 
 PRIOR_WEIGHT = 1e-3  # the cost of a centre moved by one centre_sigma, in shares of a mask left uncovered
 
@@ -176,7 +176,7 @@ def align_cameras(
     pad = 0.25 * (hi - lo)  # room for the hull to move while the cameras turn
     box_t = (lo - pad, hi + pad)
     corr = PoseCorrection(len(cameras), dtype=dtype)  # every view moves (module docstring)
-    distance = float(np.mean([np.linalg.norm(c.center) for c in cameras])) or 1.0
+    distance = mean_camera_distance(cameras)
     groups = [{"params": [corr.rotation], "lr": settings.lr, "base_lr": settings.lr}]
     if settings.centre_sigma > 0:
         lr = settings.lr * distance
