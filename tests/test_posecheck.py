@@ -10,10 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from go_core.alignment import umeyama
 from go_core.camera import Camera
+from go_core.epipolar import epipolar_distances
 from go_core.posecheck import (
     build_tracks,
     check_poses,
-    epipolar_distances,
     leave_one_out_errors,
     reconstruct,
     triangulate_dlt,

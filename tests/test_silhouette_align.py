@@ -7,54 +7,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from _ellipsoids import ellipsoid_mask, ring_cameras, turned
 
 from go_core.alignment import similarity_from_cameras
-from go_core.camera import Camera, look_at
+from go_core.camera import Camera
 from go_core.hull import hull_bounds
 from go_core.silhouette_align import SilhouetteAlignSettings, align_cameras
-
-SIZE = 64
-# an asymmetric object: two overlapping ellipsoids (centre, semi-axes)
-ELLIPSOIDS = [
-    (np.array([0.0, 0.0, 0.0]), np.array([0.5, 0.3, 0.7])),
-    (np.array([0.3, 0.2, 0.3]), np.array([0.25, 0.45, 0.2])),
-]
-
-
-def _mask(cam: Camera) -> np.ndarray:
-    """Exact silhouette: pixels whose ray (through the pixel centre) hits an ellipsoid."""
-    v, u = np.mgrid[0:SIZE, 0:SIZE] + 0.5
-    d_cam = np.stack([u, v, np.ones_like(u)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T
-    R, t = cam.world_to_cam[:3, :3], cam.world_to_cam[:3, 3]
-    d = d_cam @ R
-    o = -R.T @ t
-    hit = np.zeros(len(d), bool)
-    for c, axes in ELLIPSOIDS:
-        oo, dd = (o - c) / axes, d / axes
-        a, b, cc = (dd * dd).sum(1), 2 * (dd @ oo), oo @ oo - 1.0
-        hit |= b * b - 4 * a * cc >= 0
-    return hit.reshape(SIZE, SIZE).astype(np.float32)
-
-
-def _cameras(count: int) -> list[Camera]:
-    f = SIZE / (2 * np.tan(np.radians(20)))
-    K = np.array([[f, 0, SIZE / 2], [0, f, SIZE / 2], [0, 0, 1.0]])
-    cams = []
-    for k in range(count):
-        a = 2 * np.pi * k / count
-        pos = 4.0 * np.array([np.cos(a), np.sin(a), 0.35 + 0.3 * (k % 2)])
-        cams.append(look_at(f"v{k}", pos, np.zeros(3), np.array([0, 0, 1.0]), K, SIZE, SIZE))
-    return cams
-
-
-def _turned(cam: Camera, degrees: float, rng: np.random.Generator) -> Camera:
-    axis = rng.normal(size=3)
-    turn = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
-    w2c = cam.world_to_cam.copy()
-    w2c[:3, :3] = turn @ w2c[:3, :3]
-    w2c[:3, 3] = turn @ w2c[:3, 3]  # a turn about the camera's own centre
-    return Camera(cam.name, cam.width, cam.height, cam.K, w2c)
 
 
 def _moved(cam: Camera, share: float, rng: np.random.Generator) -> Camera:
@@ -81,15 +39,15 @@ def _reprojection_px(cams: list[Camera], truth: list[Camera], similarity: bool =
 
 @pytest.fixture(scope="module")
 def scene():
-    truth = _cameras(5)
-    return truth, [_mask(c) for c in truth]
+    truth = ring_cameras(5)
+    return truth, [ellipsoid_mask(c) for c in truth]
 
 
 def test_planted_rotations_are_recovered(scene):
     """Centres held (``centre_sigma=0``): planted turns are undone in the cameras' own frame."""
     truth, masks = scene
     rng = np.random.default_rng(0)
-    start = [_turned(c, 5.0, rng) for c in truth]  # the first view too: with the centres held, no gauge
+    start = [turned(c, 5.0, rng) for c in truth]  # the first view too: with the centres held, no gauge
     box = hull_bounds(start, masks, min_views=len(start) - 1)
     settings = SilhouetteAlignSettings(sizes=(32, 64), iterations=60, samples=48, centre_sigma=0.0)
     res = align_cameras(start, masks, box, settings)
@@ -108,7 +66,7 @@ def test_planted_turns_and_moves_are_recovered(scene):
     free_px, held_px = [], []
     for seed in (3, 4):
         rng = np.random.default_rng(seed)
-        start = [_moved(_turned(c, 5.0, rng), 0.05, rng) for c in truth]
+        start = [_moved(turned(c, 5.0, rng), 0.05, rng) for c in truth]
         box = hull_bounds(start, masks, min_views=len(start) - 1)
         free = align_cameras(start, masks, box, settings)
         held = align_cameras(start, masks, box, replace(settings, centre_sigma=0.0))

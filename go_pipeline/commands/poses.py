@@ -149,7 +149,8 @@ def _print_report(report) -> None:
         print(f"{r.name:<28}{pairs:>18}{r.observations:>6}{med:>11}{p90:>9}{cov:>10}  {r.status} {r.reason}")
     print(
         f"{report.num_verified_pairs} verified pairs, {report.num_tracks} tracks, "
-        f"{report.wide_pairs_ignored} disagreeing wide-baseline pairs ignored; "
+        f"{report.wide_pairs_ignored} disagreeing wide-baseline pairs ignored, "
+        f"{report.refuted_pairs_ignored} refuted by the silhouettes; "
         f"{len(report.flagged)} flagged, {len(report.unverified)} unverified"
     )
     for note in report.notes:
