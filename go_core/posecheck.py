@@ -531,12 +531,12 @@ def check_poses(
     agrees = {p: p in consistent for p in pair_err}
     support = np.bincount(np.asarray(list(consistent), np.int64).reshape(-1), minlength=len(views))
     if coverage and not (masks_agree and matches_disagree_set_wide(len(views), agrees)):
-        masks, floor = [v.mask for v in views], refutation_floor(min(coverage), MIN_COVERAGE)
+        masks, coverage_floor = [v.mask for v in views], refutation_floor(min(coverage), MIN_COVERAGE)
         for (i, j), points in disagreeing.items():
             if min(support[i], support[j]) >= min_consistent_pairs:
                 continue
-            turns = pair_turns(cameras, masks, (i, j), points, max(thr[i], thr[j]), floor)
-            if turns.refuted(floor):
+            turns = pair_turns(cameras, masks, (i, j), points, max(thr[i], thr[j]), coverage_floor)
+            if turns.refuted(coverage_floor):
                 refuted[(i, j)] = turns
                 del pair_err[(i, j)]
     tracks = build_tracks([len(k) for k in keypoints], consistent)
