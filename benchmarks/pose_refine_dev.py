@@ -98,12 +98,14 @@ def camera_errors(cameras_json: Path, scene_dir: Path) -> dict:
     return result
 
 
-def run_case(scene_dir: Path, workdir: Path, overrides: dict) -> dict:
+def run_case(scene_dir: Path, workdir: Path, overrides: dict, seed: int = 0) -> dict:
     from go_pipeline.runner import run_pipeline
 
     overrides = {**overrides, "weights.repair_model": "sd15"}
     t0 = time.perf_counter()
-    summary = run_pipeline(scene_dir, workdir=workdir, overrides=overrides, until="eval", quiet=True)
+    summary = run_pipeline(
+        scene_dir, workdir=workdir, overrides=overrides, until="eval", quiet=True, seed=seed
+    )
     metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
     coarse_dir = summary.step("coarse").artifact_dir
     steps = {s.name: json.loads((s.artifact_dir / "manifest.json").read_text()) for s in summary.steps}
@@ -149,6 +151,9 @@ def main() -> None:
         "this run's --set; exact_cf never aligns or refines, so a change there leaves it as it was)",
     )
     ap.add_argument("--seed", type=int, default=0, help="seed of the perturbations")
+    ap.add_argument(
+        "--pipeline-seed", type=int, default=0, help="the pipeline's seed (run-to-run spread of every score)"
+    )
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
 
@@ -164,6 +169,7 @@ def main() -> None:
         "cpu_count": os.cpu_count(),
         "load_average_start": os.getloadavg(),
         "overrides": common,
+        "pipeline_seed": args.pipeline_seed,
         "variants": variants,
         "protocol": "every training pose perturbed (initial_poses.json), the folder's poses the reference; "
         "perturbed and exact_cf runs evaluated with the CF protocol; coarse only",
@@ -175,6 +181,8 @@ def main() -> None:
         if ref.get("overrides") != common:
             theirs = ref.get("overrides")
             raise SystemExit(f"{args.reference}: its overrides {theirs} differ from this run's {common}")
+        if ref.get("pipeline_seed", 0) != args.pipeline_seed:
+            raise SystemExit(f"{args.reference}: its pipeline seed differs from {args.pipeline_seed}")
         reference = {n: e["exact_cf"] for n, e in ref["scenes"].items() if "exact_cf" in e}
         result["exact_cf_from"] = str(args.reference)
     if args.out.exists():  # resume: keep scenes measured by an earlier invocation
@@ -185,14 +193,14 @@ def main() -> None:
         src = args.data / name
         entry: dict = {}
         if not args.no_exact:
-            entry["exact"] = run_case(src, args.workroot / name / "exact", common)
+            entry["exact"] = run_case(src, args.workroot / name / "exact", common, args.pipeline_seed)
             entry["exact"].pop("cameras")
         if name in reference:
             entry["exact_cf"] = reference[name]
         else:
             copy = args.workroot / name / "scene_exact"
             perturbed_copy(src, copy, 0.0, 0.0, args.seed)
-            entry["exact_cf"] = run_case(copy, args.workroot / name / "exact_cf", initial)
+            entry["exact_cf"] = run_case(copy, args.workroot / name / "exact_cf", initial, args.pipeline_seed)
             entry["exact_cf"].pop("cameras")
         print(name, "exact_cf", entry["exact_cf"]["psnr"], flush=True)
         for level in args.levels:
@@ -201,7 +209,7 @@ def main() -> None:
             perturbed_copy(src, copy, degrees, shift, args.seed)
             for kind, extra in variants.items():
                 key = f"{level}_{kind}"
-                case = run_case(copy, args.workroot / name / key, {**initial, **extra})
+                case = run_case(copy, args.workroot / name / key, {**initial, **extra}, args.pipeline_seed)
                 case["camera_errors"] = camera_errors(Path(case.pop("cameras")), src)
                 case["psnr_vs_exact_cf"] = case["psnr"] - entry["exact_cf"]["psnr"]
                 if "exact" in entry:
