@@ -22,9 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from go_core.camera import Camera
 from go_core.pose_verify import verify_poses
 from go_core.posecheck import PoseCheckError, check_poses, reconstruct
 from go_core.scene import load_scene
@@ -95,12 +93,8 @@ def check(views, matcher: str) -> dict:
 
 
 def rotated(views, k: int, degrees: float = 5.0):
-    c = views[k].camera
-    R = Rotation.from_euler("x", degrees, degrees=True).as_matrix() @ c.world_to_cam[:3, :3]
-    w2c = np.eye(4)
-    w2c[:3, :3], w2c[:3, 3] = R, -R @ c.center
     out = list(views)
-    out[k] = dataclasses.replace(views[k], camera=Camera(c.name, c.width, c.height, c.K, w2c))
+    out[k] = dataclasses.replace(views[k], camera=views[k].camera.turned(np.radians([degrees, 0.0, 0.0])))
     return out
 
 

@@ -80,6 +80,17 @@ class Camera:
         w, h = round(self.width * factor), round(self.height * factor)
         return Camera(self.name, w, h, K, self.world_to_cam.copy())
 
+    def turned(self, rotvec: np.ndarray) -> Camera:
+        """The camera turned about its own centre by the rotation vector ``rotvec`` (radians, camera frame):
+        ``world_to_cam' = [exp([rotvec]x) | 0] · world_to_cam``, the same centre looking elsewhere."""
+        from scipy.spatial.transform import Rotation
+
+        turn = Rotation.from_rotvec(np.asarray(rotvec, np.float64)).as_matrix()
+        w2c = self.world_to_cam.copy()
+        w2c[:3, :3] = turn @ w2c[:3, :3]
+        w2c[:3, 3] = turn @ w2c[:3, 3]
+        return Camera(self.name, self.width, self.height, self.K, w2c)
+
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Project world points [N,3] → (pixel coords [N,2] as (u=col, v=row), depth z [N])."""
         pc = points @ self.world_to_cam[:3, :3].T + self.world_to_cam[:3, 3]

@@ -33,16 +33,6 @@ def refutation_floor(given_lowest: float, min_coverage: float) -> float:
     return min(given_lowest, min_coverage) - COVERAGE_TOLERANCE
 
 
-def turned(camera: Camera, rotvec: np.ndarray) -> Camera:
-    """``camera`` turned about its own centre by the rotation vector ``rotvec`` (radians, camera frame)."""
-    from scipy.spatial.transform import Rotation
-
-    R = Rotation.from_rotvec(rotvec).as_matrix() @ camera.world_to_cam[:3, :3]
-    w2c = np.eye(4)
-    w2c[:3, :3], w2c[:3, 3] = R, -R @ camera.center
-    return Camera(camera.name, camera.width, camera.height, camera.K, w2c)
-
-
 def turn_to_matches(
     cameras: tuple[Camera, Camera], points: tuple[np.ndarray, np.ndarray], which: int, scale_px: float
 ) -> tuple[Camera, float, float]:
@@ -54,12 +44,12 @@ def turn_to_matches(
 
     def residuals(rotvec: np.ndarray) -> np.ndarray:
         pair = list(cameras)
-        pair[which] = turned(cameras[which], rotvec)
+        pair[which] = cameras[which].turned(rotvec)
         return epipolar_distances(pair[0], pair[1], points[0], points[1])
 
     fit = least_squares(residuals, np.zeros(3), loss="soft_l1", f_scale=scale_px)
     return (
-        turned(cameras[which], fit.x),
+        cameras[which].turned(fit.x),
         float(np.degrees(np.linalg.norm(fit.x))),
         float(np.median(residuals(fit.x))),
     )
@@ -82,7 +72,6 @@ class PairTurns:
     """What the two turns a disagreeing pair asks for do to the silhouettes (one entry per view)."""
 
     turn_deg: tuple[float, float]
-    epipolar_px: tuple[float, float]  # median epipolar distance once that view is turned
     coverage: tuple[float, float]  # lowest mask coverage of any view with that view turned
 
     def refuted(self, floor: float) -> bool:
@@ -101,14 +90,12 @@ def pair_turns(
     """For the disagreeing ``pair`` (i, j) with matched ``points`` (pixels in i, in j): turn i to fit the
     matches with j held, then j with i held, and measure the masks' agreement after each. The second turn is
     skipped (coverage 0) when the first already leaves every view's coverage >= ``floor``."""
-    turns, epis, covs = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
+    turns, covs = [0.0, 0.0], [0.0, 0.0]
     for which in (0, 1):
-        cam, turns[which], epis[which] = turn_to_matches(
-            (cameras[pair[0]], cameras[pair[1]]), points, which, scale_px
-        )
+        cam, turns[which], _ = turn_to_matches((cameras[pair[0]], cameras[pair[1]]), points, which, scale_px)
         trial = list(cameras)
         trial[pair[which]] = cam
         covs[which] = lowest_coverage(trial, masks)
         if covs[which] >= floor:
             break
-    return PairTurns(tuple(turns), tuple(epis), tuple(covs))
+    return PairTurns(tuple(turns), tuple(covs))

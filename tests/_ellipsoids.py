@@ -4,7 +4,6 @@ intersections, seen by cameras on a ring (no tests here)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from go_core.camera import Camera, look_at
 
@@ -46,8 +45,4 @@ def ring_cameras(count: int) -> list[Camera]:
 def turned(cam: Camera, degrees: float, rng: np.random.Generator) -> Camera:
     """``cam`` turned by ``degrees`` about a random axis through its own centre."""
     axis = rng.normal(size=3)
-    turn = Rotation.from_rotvec(np.radians(degrees) * axis / np.linalg.norm(axis)).as_matrix()
-    w2c = cam.world_to_cam.copy()
-    w2c[:3, :3] = turn @ w2c[:3, :3]
-    w2c[:3, 3] = turn @ w2c[:3, 3]  # a turn about the camera's own centre
-    return Camera(cam.name, cam.width, cam.height, cam.K, w2c)
+    return cam.turned(np.radians(degrees) * axis / np.linalg.norm(axis))

@@ -89,15 +89,7 @@ def _turned_view(view, degrees: float):
     """``view`` with its camera turned ``degrees`` about its own x axis (the pose wrong, the photo not)."""
     import dataclasses
 
-    from scipy.spatial.transform import Rotation
-
-    from go_core.camera import Camera
-
-    c = view.camera
-    R = Rotation.from_euler("x", degrees, degrees=True).as_matrix() @ c.world_to_cam[:3, :3]
-    w2c = np.eye(4)
-    w2c[:3, :3], w2c[:3, 3] = R, -R @ c.center
-    return dataclasses.replace(view, camera=Camera(c.name, c.width, c.height, c.K, w2c))
+    return dataclasses.replace(view, camera=view.camera.turned(np.radians([degrees, 0.0, 0.0])))
 
 
 def test_learned_matcher_checks_the_example_scene(nets):

@@ -8,7 +8,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from go_core.camera import Camera
+from go_core.camera import Camera, look_at
 from go_core.gaussians import Gaussians
 from go_core.pose_refine import PoseCorrection, refine_pose, rotation_angle_deg, so3_exp
 from go_core.render import render_camera
@@ -31,6 +31,23 @@ def test_fixed_views_keep_their_pose():
         corr.translation.fill_(0.2)
     D = corr.matrices()
     assert torch.equal(D[0], torch.eye(4)) and not torch.equal(D[1], torch.eye(4))
+
+
+def test_camera_turned_is_a_rotation_only_pose_correction():
+    """``Camera.turned`` (numpy, the pose check's turns) equals ``PoseCorrection`` with no translation
+    (torch, the refinement's): same centre, turned by |rotvec|."""
+    K = np.array([[50.0, 0, 32], [0, 50.0, 32], [0, 0, 1]])
+    cam = look_at("c", np.array([0.3, -1.2, 2.5]), np.zeros(3), np.array([0, 0, 1.0]), K, 64, 64)
+    rotvec = np.array([0.05, -0.02, 0.03])
+    corr = PoseCorrection(1)
+    with torch.no_grad():
+        corr.rotation.copy_(torch.as_tensor(rotvec[None]))
+    np.testing.assert_allclose(
+        cam.turned(rotvec).world_to_cam, corr.apply_to([cam])[0].world_to_cam, atol=1e-7
+    )
+    np.testing.assert_allclose(cam.turned(rotvec).center, cam.center, atol=1e-12)
+    angle = rotation_angle_deg(cam.turned(rotvec).world_to_cam, cam.world_to_cam)
+    assert angle == pytest.approx(np.degrees(np.linalg.norm(rotvec)), abs=1e-9)
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,6 @@ import json
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from go_core.camera import Camera, look_at
 from go_core.pose_verify import mask_coverage, rotation_spread_deg, verify_poses
@@ -37,10 +36,7 @@ def _ellipsoid_mask(cam: Camera) -> np.ndarray:
 
 
 def _turned(cam: Camera, degrees: float, axis: str = "x") -> Camera:
-    R = Rotation.from_euler(axis, degrees, degrees=True).as_matrix() @ cam.world_to_cam[:3, :3]
-    w2c = np.eye(4)
-    w2c[:3, :3], w2c[:3, 3] = R, -R @ cam.center
-    return Camera(cam.name, cam.width, cam.height, cam.K, w2c)
+    return cam.turned(np.radians(degrees) * np.eye(3)["xyz".index(axis)])
 
 
 @pytest.fixture(scope="module")

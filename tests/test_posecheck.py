@@ -6,7 +6,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from go_core.alignment import umeyama
 from go_core.camera import Camera
@@ -36,12 +35,7 @@ def _with_camera(views, k: int, w2c: np.ndarray):
 
 def rotated(views, k: int, degrees: float = 5.0):
     """Camera k turned by ``degrees`` about an axis through its centre (its own x axis)."""
-    c = views[k].camera
-    R = Rotation.from_euler("x", degrees, degrees=True).as_matrix() @ c.world_to_cam[:3, :3]
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ c.center
-    return _with_camera(views, k, w2c)
+    return _with_camera(views, k, views[k].camera.turned(np.radians([degrees, 0.0, 0.0])).world_to_cam)
 
 
 def translated(views, k: int, offset_cam: np.ndarray):
