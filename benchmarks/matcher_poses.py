@@ -69,6 +69,7 @@ def estimate(views, matcher: str) -> dict:
         "of": len(views),
         "rotation_error_deg": {k: round(v, 2) for k, v in errs.items()},
         "max_rotation_error_deg": round(max(errs.values()), 2) if errs else None,
+        "within_5deg": sum(e < 5.0 for e in errs.values()),
         "verified_pairs": sfm.num_verified_pairs,
         "mean_reprojection_px": round(sfm.mean_reprojection_px, 3),
         "estimate_accepted": verdict.ok and len(names) == len(views),
