@@ -115,9 +115,10 @@ LEARNED_MIN_THRESHOLD_PX = 1.5
 DEFAULT_MATCHER = "sift"
 # LightGlue's match confidence floor: its own default for the check, whose verdicts rest on every pair with
 # the given poses; 0.9 for estimation, where a wrong pair becomes a wrong camera. Wide-baseline pairs of a
-# shiny or symmetric object get tens of confident-looking wrong matches that share the true epipolar lines'
-# direction (turntable: near-horizontal), so COLMAP's two-view verification passes them: real/ethiopian_head
-# (12 views) had 53 of 66 verified pairs wrong at 0.1, 0 of 10 at 0.9 (docs/evaluation.md)
+# shiny or symmetric object get tens of wrong matches (median confidence 0.04 against 0.47 for right ones)
+# that share the true epipolar lines' direction (turntable: near-horizontal), so COLMAP's two-view
+# verification passes them: real/ethiopian_head (12 views) had 53 of 66 verified pairs wrong at 0.1, 0 of
+# 10 at 0.9 (docs/evaluation.md)
 CHECK_MIN_CONFIDENCE = 0.1
 ESTIMATE_MIN_CONFIDENCE = 0.9
 
@@ -711,6 +712,7 @@ def reconstruct(
 ) -> SfmResult:
     """Incremental SfM with pycolmap for images without poses (``views``: objects with ``name``, ``image``
     and optional ``mask``). One shared PINHOLE camera is estimated. Keeps the largest reconstruction.
+    The learned matcher keeps only matches above ESTIMATE_MIN_CONFIDENCE.
     COLMAP's RANSAC and mapper draw from ``seed``; results repeat exactly only with ``num_threads=1``.
     Raises ``PoseCheckError`` when nothing can be reconstructed, saying why."""
     import pycolmap
