@@ -99,14 +99,23 @@ def camera_errors(cameras_json: Path, scene_dir: Path) -> dict:
     return result
 
 
-def run_case(scene_dir: Path, workdir: Path, overrides: dict, seed: int = 0) -> dict:
+def run_case(scene_dir: Path, workdir: Path, overrides: dict, seed: int = 0, until: str = "eval") -> dict:
+    """One pipeline run up to ``until``: "eval" (scores and the coarse cameras) or "hull" (the hull's
+    cameras only: the silhouette alignment's result, no training)."""
     from go_pipeline.runner import run_pipeline
 
     overrides = {**overrides, "weights.repair_model": "sd15"}
     t0 = time.perf_counter()
     summary = run_pipeline(
-        scene_dir, workdir=workdir, overrides=overrides, until="eval", quiet=True, seed=seed
+        scene_dir, workdir=workdir, overrides=overrides, until=until, quiet=True, seed=seed
     )
+    if until == "hull":
+        hull = json.loads((summary.step("hull").artifact_dir / "manifest.json").read_text())
+        return {
+            "hull_cpu_s": hull.get("cpu_s"),
+            "run_wall_s": round(time.perf_counter() - t0, 1),
+            "cameras": str(summary.step("hull").artifact_dir / "cameras.json"),
+        }
     metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
     coarse_dir = summary.step("coarse").artifact_dir
     steps = {s.name: json.loads((s.artifact_dir / "manifest.json").read_text()) for s in summary.steps}
@@ -145,6 +154,12 @@ def main() -> None:
         "coarse.refine_poses, aligned with hull.align_poses, aligned_refined with both)",
     )
     ap.add_argument("--no-exact", action="store_true", help="skip the exact run with given poses")
+    ap.add_argument(
+        "--until",
+        choices=["eval", "hull"],
+        default="eval",
+        help="hull: the variants' silhouette-aligned cameras only (camera errors, no training or scores)",
+    )
     ap.add_argument(
         "--reference",
         type=Path,
@@ -196,31 +211,50 @@ def main() -> None:
         if not args.no_exact:
             entry["exact"] = run_case(src, args.workroot / name / "exact", common, args.pipeline_seed)
             entry["exact"].pop("cameras")
-        if name in reference:
+        if args.until == "hull":
+            pass  # camera errors only: nothing to score against
+        elif name in reference:
             entry["exact_cf"] = reference[name]
         else:
             copy = args.workroot / name / "scene_exact"
             perturbed_copy(src, copy, 0.0, 0.0, args.seed)
             entry["exact_cf"] = run_case(copy, args.workroot / name / "exact_cf", initial, args.pipeline_seed)
             entry["exact_cf"].pop("cameras")
-        print(name, "exact_cf", entry["exact_cf"]["psnr"], flush=True)
+        if "exact_cf" in entry:
+            print(name, "exact_cf", entry["exact_cf"]["psnr"], flush=True)
         for level in args.levels:
             degrees, shift = LEVELS[level]
             copy = args.workroot / name / f"scene_{level}"
             perturbed_copy(src, copy, degrees, shift, args.seed)
             for kind, extra in variants.items():
                 key = f"{level}_{kind}"
-                case = run_case(copy, args.workroot / name / key, {**initial, **extra}, args.pipeline_seed)
+                case = run_case(
+                    copy, args.workroot / name / key, {**initial, **extra}, args.pipeline_seed, args.until
+                )
                 case["camera_errors"] = camera_errors(Path(case.pop("cameras")), src)
-                case["psnr_vs_exact_cf"] = case["psnr"] - entry["exact_cf"]["psnr"]
+                if "psnr" in case:
+                    case["psnr_vs_exact_cf"] = case["psnr"] - entry["exact_cf"]["psnr"]
                 if "exact" in entry:
                     case["psnr_vs_exact"] = case["psnr"] - entry["exact"]["psnr"]
                 entry[key] = case
-                print(name, key, round(case["psnr"], 3), case["camera_errors"], flush=True)
+                print(name, key, round(case.get("psnr", float("nan")), 3), case["camera_errors"], flush=True)
         result["scenes"][name] = entry
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
     done = result["scenes"].values()
+    if args.until == "hull":  # the aligned cameras' mean reprojection error per scene (px)
+        result["summary"] = {
+            f"{level}_{kind}_reprojection_px": {
+                n: round(float(np.mean(e[f"{level}_{kind}"]["camera_errors"]["reprojection_px"])), 2)
+                for n, e in result["scenes"].items()
+                if f"{level}_{kind}" in e
+            }
+            for level in args.levels
+            for kind in variants
+        }
+        result["load_average_end"] = os.getloadavg()
+        args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+        return
     result["summary"] = {
         f"{level}_{kind}_psnr_vs_exact_cf": {
             n: round(e[f"{level}_{kind}"]["psnr_vs_exact_cf"], 3)

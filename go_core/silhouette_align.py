@@ -27,7 +27,11 @@ scenes above: 13–23 px with view 0 fixed, 8–13 px with every view free). An 
 planes of both masks) was measured as an addition and changed the mean by < 0.1 px, so it is not here.
 
 Four silhouettes leave slack (the hull of three views is looser than the object), so this is a
-pre-alignment, not a calibration: the aligned cameras' coverage matches the true cameras' to 0.2 %.
+pre-alignment, not a calibration: the aligned cameras' coverage matches the true cameras' to 0.2 %. The
+slack shows from the true cameras too: coverage is already ~0.999 there and Adam's normalised steps wander
+along the flat objective, moving the dev scenes' true cameras by 2-18 px (the flat plate most). A prior on
+each camera's turn (``rotation_sigma_deg``, off by default) holds them (1°: 0.5-5 px), at the price of
+stopping 5° starts nearer where they began (docs/coarse.md).
 ~50 CPU s at 256 px, one thread (benchmarks/pose_refine_dev.py, docs/coarse.md).
 """
 
@@ -43,7 +47,7 @@ import torch.nn.functional as F
 from go_core.camera import Camera
 from go_core.pose_refine import PoseCorrection, mean_camera_distance
 
-PRIOR_WEIGHT = 1e-3  # the cost of a centre moved by one centre_sigma, in shares of a mask left uncovered
+PRIOR_WEIGHT = 1e-3  # the cost of a move by one sigma (centre or turn), in shares of a mask left uncovered
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,7 @@ class SilhouetteAlignSettings:
     blur: float = 1.0  # Gaussian sigma of the masks, in pixels of the level
     lr: float = 3e-3  # radians per step (centres: × the mean camera distance), cosine-decayed ×0.1 per level
     centre_sigma: float = 0.05  # prior on each centre's move, × the mean camera distance; 0: centres held
+    rotation_sigma_deg: float = 0.0  # prior on each camera's turn, degrees; 0: none
 
 
 @dataclass(frozen=True)
@@ -197,6 +202,9 @@ def align_cameras(
             if settings.centre_sigma > 0:  # |τ| is the centre's move (camera-side correction)
                 moved = corr.translation / (settings.centre_sigma * distance)
                 loss = loss + PRIOR_WEIGHT * moved.pow(2).sum(1).mean()
+            if settings.rotation_sigma_deg > 0:  # |ω| is the camera's turn
+                turn = corr.rotation / math.radians(settings.rotation_sigma_deg)
+                loss = loss + PRIOR_WEIGHT * turn.pow(2).sum(1).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()

@@ -46,7 +46,9 @@ def _aligned_cameras(ctx, cams, masks, params: HullParams, info: dict):
         raise SceneError(f"hull.align_poses needs at least 3 training views, the scene has {len(cams)}")
     box = hull_bounds(cams, masks, min_views=len(cams) - 1, threshold=params.mask_threshold)
     settings = SilhouetteAlignSettings(
-        iterations=params.align_iterations, centre_sigma=params.align_centre_sigma
+        iterations=params.align_iterations,
+        centre_sigma=params.align_centre_sigma,
+        rotation_sigma_deg=params.align_rotation_sigma,
     )
     res = align_cameras(cams, masks, box, settings)
     art.write_cameras(ctx.out_dir, res.cameras, aligned=True)

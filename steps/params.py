@@ -70,6 +70,9 @@ class HullParams:
     align_centre_sigma: float = setting(
         0.05, ge=0, doc="align_poses: prior on each camera centre's move, x mean camera distance (0: held)"
     )
+    align_rotation_sigma: float = setting(
+        0.0, ge=0, doc="align_poses: prior on each camera's turn, degrees (0: none)"
+    )
 
 
 @dataclass

@@ -92,3 +92,27 @@ def test_two_views_are_refused(scene):
     truth, masks = scene
     with pytest.raises(ValueError, match="at least 3 views"):
         align_cameras(truth[:2], masks[:2], (np.full(3, -1.0), np.full(3, 1.0)))
+
+
+def test_a_turn_prior_holds_true_cameras_and_still_corrects_planted_turns(scene):
+    """``rotation_sigma_deg``: with nothing to recover the objective is flat (coverage already ~1) and Adam's
+    normalised steps wander along it; a prior on each turn keeps the true cameras closer to themselves,
+    while planted 5° turns are still mostly undone (the coverage gain outweighs the prior). Measured: from the
+    true cameras 0.58 px without the prior, 0.25 px with sigma 1°; planted turns + moves 5.60 → 1.27 px."""
+    truth, masks = scene
+    settings = SilhouetteAlignSettings(sizes=(32, 64), iterations=60, samples=48)
+    box = hull_bounds(truth, masks, min_views=len(truth) - 1)
+    free = align_cameras(truth, masks, box, settings)
+    held = align_cameras(truth, masks, box, replace(settings, rotation_sigma_deg=1.0))
+    free_px = _reprojection_px(free.cameras, truth, similarity=True).mean()
+    held_px = _reprojection_px(held.cameras, truth, similarity=True).mean()
+    assert held_px < 0.7 * free_px, (free_px, held_px)
+    assert max(held.rotations_deg) < max(free.rotations_deg)
+    rng = np.random.default_rng(3)
+    start = [_moved(turned(c, 5.0, rng), 0.05, rng) for c in truth]
+    box = hull_bounds(start, masks, min_views=len(start) - 1)
+    res = align_cameras(start, masks, box, replace(settings, rotation_sigma_deg=1.0))
+    before = _reprojection_px(start, truth, similarity=True).mean()
+    after = _reprojection_px(res.cameras, truth, similarity=True).mean()
+    assert after < 0.5 * before, (before, after)
+    assert min(res.coverage_after) > min(res.coverage_before) + 0.05
