@@ -3,26 +3,13 @@ the built-in example (test profile) and the screenshot shows its images (benchma
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _screenshot_module():
-    spec = importlib.util.spec_from_file_location(
-        "report_screenshot", REPO / "benchmarks" / "report_screenshot.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from _benchmark_module import benchmark_module
 
 
 @pytest.mark.slow
 def test_report_html_renders_in_headless_chromium(tmp_path):
-    shot = _screenshot_module()
+    shot = benchmark_module("report_screenshot")
     if shot.find_chromium() is None:
         pytest.skip("needs chromium (Debian: apt-get install chromium)")
     from go_pipeline.cli import main

@@ -4,27 +4,15 @@ makes between wide-baseline views: they pass two-view verification) or off it ar
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _benchmark_module import benchmark_module
 from _ellipsoids import ring_cameras
 from scipy.spatial import cKDTree
 
 from go_core.epipolar import epipolar_distances, fundamental_from_poses
 
-REPO = Path(__file__).resolve().parents[1]
 HALF = 0.5  # the cube's half size
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location(
-        "training_view_matches", REPO / "benchmarks" / "training_view_matches.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _cube() -> tuple[np.ndarray, np.ndarray]:
@@ -36,7 +24,7 @@ def _cube() -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def bench():
-    return _module()
+    return benchmark_module("training_view_matches")
 
 
 def test_surface_samples_lie_on_the_faces_spread_by_area(bench):
