@@ -110,11 +110,11 @@ def run_case(scene_dir: Path, workdir: Path, overrides: dict, seed: int = 0, unt
         scene_dir, workdir=workdir, overrides=overrides, until=until, quiet=True, seed=seed
     )
     if until == "hull":
-        hull = json.loads((summary.step("hull").artifact_dir / "manifest.json").read_text())
+        hull_dir = summary.step("hull").artifact_dir
         return {
-            "hull_cpu_s": hull.get("cpu_s"),
+            "hull_cpu_s": json.loads((hull_dir / "manifest.json").read_text()).get("cpu_s"),
             "run_wall_s": round(time.perf_counter() - t0, 1),
-            "cameras": str(summary.step("hull").artifact_dir / "cameras.json"),
+            "cameras": str(hull_dir / "cameras.json"),
         }
     metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
     coarse_dir = summary.step("coarse").artifact_dir
@@ -208,19 +208,18 @@ def main() -> None:
             continue
         src = args.data / name
         entry: dict = {}
-        if not args.no_exact:
-            entry["exact"] = run_case(src, args.workroot / name / "exact", common, args.pipeline_seed)
-            entry["exact"].pop("cameras")
-        if args.until == "hull":
-            pass  # camera errors only: nothing to score against
-        elif name in reference:
-            entry["exact_cf"] = reference[name]
-        else:
-            copy = args.workroot / name / "scene_exact"
-            perturbed_copy(src, copy, 0.0, 0.0, args.seed)
-            entry["exact_cf"] = run_case(copy, args.workroot / name / "exact_cf", initial, args.pipeline_seed)
-            entry["exact_cf"].pop("cameras")
-        if "exact_cf" in entry:
+        if args.until == "eval":  # the references to score against (--until hull: camera errors only)
+            if not args.no_exact:
+                entry["exact"] = run_case(src, args.workroot / name / "exact", common, args.pipeline_seed)
+                entry["exact"].pop("cameras")
+            if name in reference:
+                entry["exact_cf"] = reference[name]
+            else:
+                copy = args.workroot / name / "scene_exact"
+                perturbed_copy(src, copy, 0.0, 0.0, args.seed)
+                workdir = args.workroot / name / "exact_cf"
+                entry["exact_cf"] = run_case(copy, workdir, initial, args.pipeline_seed)
+                entry["exact_cf"].pop("cameras")
             print(name, "exact_cf", entry["exact_cf"]["psnr"], flush=True)
         for level in args.levels:
             degrees, shift = LEVELS[level]
@@ -232,7 +231,7 @@ def main() -> None:
                     copy, args.workroot / name / key, {**initial, **extra}, args.pipeline_seed, args.until
                 )
                 case["camera_errors"] = camera_errors(Path(case.pop("cameras")), src)
-                if "psnr" in case:
+                if "exact_cf" in entry:
                     case["psnr_vs_exact_cf"] = case["psnr"] - entry["exact_cf"]["psnr"]
                 if "exact" in entry:
                     case["psnr_vs_exact"] = case["psnr"] - entry["exact"]["psnr"]
@@ -243,32 +242,22 @@ def main() -> None:
         args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
     done = result["scenes"].values()
     if args.until == "hull":  # the aligned cameras' mean reprojection error per scene (px)
-        result["summary"] = {
-            f"{level}_{kind}_reprojection_px": {
-                n: round(float(np.mean(e[f"{level}_{kind}"]["camera_errors"]["reprojection_px"])), 2)
-                for n, e in result["scenes"].items()
-                if f"{level}_{kind}" in e
-            }
-            for level in args.levels
-            for kind in variants
-        }
-        result["load_average_end"] = os.getloadavg()
-        args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
-        return
+        measure, value = "reprojection_px", lambda c: round(float(np.mean(c["camera_errors"][measure])), 2)
+    else:
+        measure, value = "psnr_vs_exact_cf", lambda c: round(c[measure], 3)
     result["summary"] = {
-        f"{level}_{kind}_psnr_vs_exact_cf": {
-            n: round(e[f"{level}_{kind}"]["psnr_vs_exact_cf"], 3)
-            for n, e in result["scenes"].items()
-            if f"{level}_{kind}" in e
+        f"{level}_{kind}_{measure}": {
+            n: value(e[f"{level}_{kind}"]) for n, e in result["scenes"].items() if f"{level}_{kind}" in e
         }
         for level in args.levels
         for kind in variants
     }
-    result["summary"]["within_0.5dB_at_5deg"] = {  # only for variants measured at 5°
-        kind: all(e[f"5deg_{kind}"]["psnr_vs_exact_cf"] >= -0.5 for e in done if f"5deg_{kind}" in e)
-        for kind in variants
-        if kind != "plain" and any(f"5deg_{kind}" in e for e in done)
-    }
+    if args.until == "eval":
+        result["summary"]["within_0.5dB_at_5deg"] = {  # only for variants scored at 5°
+            kind: all(e[f"5deg_{kind}"]["psnr_vs_exact_cf"] >= -0.5 for e in done if f"5deg_{kind}" in e)
+            for kind in variants
+            if kind != "plain" and any(f"5deg_{kind}" in e for e in done)
+        }
     result["load_average_end"] = os.getloadavg()
     args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
 

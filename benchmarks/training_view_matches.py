@@ -55,12 +55,11 @@ def right_matches(cams, xy0, xy1, tree, diag: float, px: float, surface: float) 
 
 
 def scene_pairs(scene_dir: Path, max_keypoints: int, dilate_px: int, px: float, surface: float) -> dict:
-    import cv2
     import torch
     from scipy.spatial import cKDTree
 
-    from go_core.features.disk import detect
     from go_core.features.weights import load_disk, load_lightglue
+    from go_core.posecheck import disk_features
     from go_core.scene import load_scene
 
     scene = load_scene(scene_dir)
@@ -69,14 +68,8 @@ def scene_pairs(scene_dir: Path, max_keypoints: int, dilate_px: int, px: float, 
     tree = cKDTree(surface_samples(vertices, np.asarray(mesh["faces"]), 400_000))
     diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     disk, glue = load_disk(), load_lightglue()
-    feats = []
     with torch.no_grad():
-        for view in scene.train:
-            img = torch.from_numpy(np.ascontiguousarray(np.clip(view.image, 0, 1).transpose(2, 0, 1))).float()
-            mask = (np.asarray(view.mask) > 0.5).astype(np.uint8)
-            mask = cv2.dilate(mask, np.ones((2 * dilate_px + 1,) * 2, np.uint8)).astype(bool)
-            f = detect(disk, img, max_keypoints=max_keypoints, mask=torch.from_numpy(mask))
-            feats.append((f, torch.tensor([img.shape[2], img.shape[1]], dtype=torch.float32)))
+        feats = disk_features(disk, scene.train, max_keypoints, dilate_px)  # as the pose check extracts them
         out = {}
         cams = scene.train_cameras
         for i in range(len(feats)):
@@ -87,9 +80,9 @@ def scene_pairs(scene_dir: Path, max_keypoints: int, dilate_px: int, px: float, 
                 xy0 = fi.xy_subpixel.numpy()[m[:, 0]] + 0.5  # pixel centres at +0.5, as Camera.project
                 xy1 = fj.xy_subpixel.numpy()[m[:, 1]] + 0.5
                 right = right_matches([cams[i], cams[j]], xy0, xy1, tree, diag, px, surface)
-                axis = np.degrees(np.arccos(np.clip(np.dot(cams[i].forward, cams[j].forward), -1, 1)))
+                angle = np.degrees(np.arccos(np.clip(np.dot(cams[i].forward, cams[j].forward), -1, 1)))
                 out[f"{scene.train[i].name}-{scene.train[j].name}"] = {
-                    "angle_deg": round(float(axis), 1),
+                    "angle_deg": round(float(angle), 1),
                     "kept_right_by_floor": {
                         str(t): [int((conf > t).sum()), int((right & (conf > t)).sum())] for t in FLOORS
                     },

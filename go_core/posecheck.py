@@ -170,6 +170,28 @@ def _sift_into_database(
     )
 
 
+def disk_features(disk, views, max_features: int, dilate_px: int, have_masks: bool = True) -> list:
+    """Per view: DISK features (``go_core.features.disk.detect``) inside its mask dilated by ``dilate_px``
+    (the whole image without masks), and the image size [w, h] LightGlue normalises keypoints by."""
+    import cv2
+    import torch
+
+    from go_core.features.disk import detect
+
+    feats = []
+    for v in views:
+        img = torch.from_numpy(np.ascontiguousarray(np.clip(v.image, 0, 1).transpose(2, 0, 1))).float()
+        mask = None
+        if have_masks:
+            m = (np.asarray(v.mask) > 0.5).astype(np.uint8)
+            if dilate_px > 0:
+                m = cv2.dilate(m, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+            mask = torch.from_numpy(m.astype(bool))
+        f = detect(disk, img, max_keypoints=max_features, mask=mask)
+        feats.append((f, torch.tensor([img.shape[2], img.shape[1]], dtype=torch.float32)))
+    return feats
+
+
 def _learned_into_database(
     views,
     work,
@@ -185,11 +207,9 @@ def _learned_into_database(
 ):
     """DISK keypoints (inside the dilated masks) and LightGlue matches of every pair, written into
     ``work/database.db``; then pycolmap's two-view geometric verification, as for SIFT."""
-    import cv2
     import pycolmap
     import torch
 
-    from go_core.features.disk import detect
     from go_core.features.weights import load_disk, load_lightglue
 
     db_path = work / "database.db"
@@ -205,18 +225,8 @@ def _learned_into_database(
         options=reader,
     )
     disk, glue = load_disk(), load_lightglue()
-    feats = []
     with torch.no_grad(), _torch_threads(num_threads):
-        for v in views:
-            img = torch.from_numpy(np.ascontiguousarray(np.clip(v.image, 0, 1).transpose(2, 0, 1))).float()
-            mask = None
-            if have_masks:
-                m = (np.asarray(v.mask) > 0.5).astype(np.uint8)
-                if dilate_px > 0:
-                    m = cv2.dilate(m, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
-                mask = torch.from_numpy(m.astype(bool))
-            f = detect(disk, img, max_keypoints=max_features, mask=mask)
-            feats.append((f, torch.tensor([img.shape[2], img.shape[1]], dtype=torch.float32)))
+        feats = disk_features(disk, views, max_features, dilate_px, have_masks)
         db = pycolmap.Database.open(db_path)
         try:
             ids = {img.name: img.image_id for img in db.read_all_images()}
