@@ -34,13 +34,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from go_core.hull import points_to_gaussians, random_init, visual_hull
+from go_core.coarse.hull import points_to_gaussians, random_init, visual_hull
+from go_core.coarse.loop import TrainView, optimize
+from go_core.coarse.losses import ssim
 from go_core.io.images import composite
-from go_core.losses import ssim
 from go_core.render import render_camera
 from go_core.scene.loader import load_scene
 from go_core.seeding import torch_generator
-from go_core.training import TrainView, optimize
 from go_pipeline.pipeline import step_params
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
@@ -331,7 +331,7 @@ def main(argv=None) -> int:
         "benchmark": "coarse_dev",
         "iterations": args.iterations,
         "scaled_schedule": args.iterations != PAPER_ITERS,
-        "schedule_scaling": "go_core.train_settings.CoarseConfig.scaled_schedule",
+        "schedule_scaling": "go_core.coarse.settings.CoarseConfig.scaled_schedule",
         "max_size": args.max_size,
         "random_points": args.random_points,
         "hull": {k: hull[k] for k in ("num_points", "opacity")},

@@ -23,8 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from go_core.pose_verify import verify_poses
-from go_core.posecheck import PoseCheckError, check_poses, reconstruct
+from go_core.errors import PoseCheckError
+from go_core.poses.check import check_poses
+from go_core.poses.sfm import reconstruct
+from go_core.poses.verify import verify_poses
 from go_core.scene import load_scene
 
 MATCHERS = ("sift", "disk")

@@ -43,9 +43,9 @@ def child(scene_dir: Path, iterations: int, warmup: int) -> dict:
     """Train and time in this process (its libgomp settings came from the environment)."""
     import torch
 
-    from go_core.hull import points_to_gaussians, visual_hull
+    from go_core.coarse.hull import points_to_gaussians, visual_hull
+    from go_core.coarse.loop import CoarseConfig, NoDensify, TrainView, optimize
     from go_core.scene.loader import load_scene
-    from go_core.training import CoarseConfig, NoDensify, TrainView, optimize
 
     torch.set_num_threads(int(os.environ.get("GO_BENCH_THREADS", "2")))
     scene = load_scene(scene_dir)

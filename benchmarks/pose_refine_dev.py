@@ -70,9 +70,9 @@ def camera_errors(cameras_json: Path, scene_dir: Path) -> dict:
     """The fitted training cameras against the true ones, after the similarity (Umeyama on the centres) that
     maps the true frame onto the fitted one: rotation error in degrees and the mean reprojection distance of
     the scene's mesh vertices (``mesh_world.npz``) in pixels, per view."""
-    from go_core.alignment import similarity_from_cameras
     from go_core.camera import Camera
-    from go_core.pose_refine import rotation_angle_deg
+    from go_core.poses.refine import rotation_angle_deg
+    from go_core.poses.similarity import similarity_from_cameras
     from go_core.scene.loader import load_scene
 
     truth = load_scene(scene_dir).train_cameras

@@ -38,7 +38,7 @@ def measure(size: int, repeats: int) -> list[dict]:
     """Records for the torch path and the kernel at one image size."""
     import torch
 
-    from go_core.losses import ssim, ssim_map
+    from go_core.coarse.losses import ssim, ssim_map
     from go_core.render.build import load_extension
 
     load_extension()

@@ -43,7 +43,7 @@ def surface_samples(vertices: np.ndarray, faces: np.ndarray, count: int, seed: i
 def right_matches(cams, xy0, xy1, tree, diag: float, px: float, surface: float) -> np.ndarray:
     """Per match: triangulated with the true cameras, it reprojects within ``px`` in both views and lies
     within ``surface`` × ``diag`` of the mesh surface (``tree``: a KD-tree of surface samples)."""
-    from go_core.posecheck import triangulate_dlt
+    from go_core.poses.tracks import triangulate_dlt
 
     P = np.stack([c.K @ c.world_to_cam[:3] for c in cams])
     X = np.stack([triangulate_dlt(P, np.stack([a, b])) for a, b in zip(xy0, xy1, strict=True)])
@@ -59,7 +59,7 @@ def scene_pairs(scene_dir: Path, max_keypoints: int, dilate_px: int, px: float, 
     from scipy.spatial import cKDTree
 
     from go_core.features.weights import load_disk, load_lightglue
-    from go_core.posecheck import disk_features
+    from go_core.poses.matching import disk_features
     from go_core.scene import load_scene
 
     scene = load_scene(scene_dir)

@@ -21,7 +21,7 @@ class Artifact:
 # The ingested scene (go_core.scene.artifact)
 SCENE_INFO = Artifact("scene.json", "the ingested scene: cameras, splits, image names")
 SCENE_VIEWS = Artifact("views.npz", "the ingested scene's images and masks, uint8")
-# Masks and depth priors (go_core.masking, go_core.depth_prior)
+# Masks and depth priors (go_core.scene.masking, go_core.coarse.depth_prior)
 MASKS = Artifact("masks.npz", "training masks, float32 [H,W] each (train_000, ...)")
 MASK_INFO = Artifact("mask.json", "the mask method and per-view statistics")
 DEPTH = Artifact("depth.npz", "monocular disparity priors (empty when the depth step skipped)")

@@ -76,13 +76,13 @@ def poses_estimated(folder: str | Path) -> bool:
 
 def read_masks(folder: str | Path, count: int | None = None) -> list[np.ndarray]:
     """The ``mask`` step's training masks in view order (``count``: the number expected, else an error)."""
-    from go_core.masking import load_masks
+    from go_core.scene.masking import load_masks
 
     return load_masks(folder, count)
 
 
 def write_masks(out_dir: str | Path, masks: list[np.ndarray]) -> Path:
-    from go_core.masking import save_masks
+    from go_core.scene.masking import save_masks
 
     return save_masks(out_dir, masks)
 
@@ -94,7 +94,7 @@ def write_cameras(
     aligned: bool = False,
 ) -> Path:
     """``cameras.json``: the training cameras a model was fitted with; ``corrections`` (per view
-    [ωx, ωy, ωz, τx, τy, τz], go_core.pose_refine) when refined, with each view's rotation change;
+    [ωx, ωy, ωz, τx, τy, τz], go_core.poses.refine) when refined, with each view's rotation change;
     ``aligned`` when they were turned by the hull's silhouette alignment. ``refined`` is true when either
     moved them: the model then lives in their frame, not the scene folder's (eval's CF protocol)."""
     import math

@@ -92,12 +92,18 @@ class Camera:
         return Camera(self.name, self.width, self.height, self.K, w2c)
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Project world points [N,3] → (pixel coords [N,2] as (u=col, v=row), depth z [N])."""
-        pc = points @ self.world_to_cam[:3, :3].T + self.world_to_cam[:3, 3]
-        z = pc[:, 2]
+        """Project world points [N,3] → (pixel coords [N,2] as (u=col, v=row), depth z [N]).
+
+        Written per column: numpy's [N,3]@[3,3] matmul is ~10x slower for the large N of the visual hull."""
+        R, t = self.world_to_cam[:3, :3], self.world_to_cam[:3, 3]
+        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        xc = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
+        yc = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
+        zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        K = self.K
         with np.errstate(divide="ignore", invalid="ignore"):
-            uv = (pc[:, :2] / z[:, None]) @ self.K[:2, :2].T + self.K[:2, 2]
-        return uv, z
+            a, b = xc / zc, yc / zc
+        return np.stack([K[0, 0] * a + K[0, 1] * b + K[0, 2], K[1, 1] * b + K[1, 2]], axis=1), zc
 
     def viewmat_tensor(self, dtype=None, device=None):
         import torch
@@ -108,18 +114,6 @@ class Camera:
         import torch
 
         return torch.as_tensor(self.K, dtype=dtype or torch.float32, device=device)
-
-
-def stack_cameras(cameras: list[Camera], dtype=None, device=None):
-    """(viewmats [C,4,4], Ks [C,3,3]) tensors for a batch of cameras of one image size."""
-    import torch
-
-    sizes = {(c.width, c.height) for c in cameras}
-    if len(sizes) != 1:
-        raise ValueError(f"a camera batch needs one image size, got {sorted(sizes)}")
-    viewmats = torch.stack([c.viewmat_tensor(dtype, device) for c in cameras])
-    Ks = torch.stack([c.K_tensor(dtype, device) for c in cameras])
-    return viewmats, Ks
 
 
 def look_at_point(cameras: list[Camera]) -> np.ndarray:

@@ -38,6 +38,10 @@ class EmptyHullError(GoError):
     """The mask frusta do not intersect: the masks do not overlap, the poses are probably wrong."""
 
 
+class PoseCheckError(GoError):
+    """The pose check or SfM could not run (too few views, no matches, no reconstruction, ...)."""
+
+
 def first_line(exc: BaseException) -> str:
     """The first non-empty line of an exception's message, or its type name when the message is empty
     (for one-line reports of errors raised by libraries)."""

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-SH_C0 = 0.28209479177387814
+from go_core.sh import SH_C0, num_sh_bases
 
 
 def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:
@@ -24,10 +24,6 @@ def rgb_to_sh0(rgb: torch.Tensor) -> torch.Tensor:
 
 def sh0_to_rgb(sh0: torch.Tensor) -> torch.Tensor:
     return sh0 * SH_C0 + 0.5
-
-
-def num_sh_bases(degree: int) -> int:
-    return (degree + 1) ** 2
 
 
 def sh_degree_of(num_bases: int) -> int:

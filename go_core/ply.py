@@ -16,8 +16,9 @@ import numpy as np
 import torch
 
 from go_core.errors import GoError
-from go_core.gaussians import Gaussians, num_sh_bases, sh_degree_of
+from go_core.gaussians import Gaussians, sh_degree_of
 from go_core.io.atomic import atomic_write
+from go_core.sh import num_sh_bases
 
 PLY_SH_DEGREE = 3
 _TYPES = {

@@ -80,8 +80,3 @@ def eval_sh(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor, normalize: bo
         dirs = torch.nn.functional.normalize(dirs, dim=-1)
     basis = sh_basis(degree, dirs)  # [..., k]
     return (basis.unsqueeze(-1) * coeffs[..., :k, :]).sum(-2)
-
-
-def sh_to_color(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-    """Displayed colour: SH value + 0.5, clamped at 0 (the 3DGS convention)."""
-    return torch.clamp_min(eval_sh(degree, coeffs, dirs) + 0.5, 0.0)

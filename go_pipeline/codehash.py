@@ -11,8 +11,9 @@ there, so editing steps/params.py reruns nothing by itself; the values are in th
 with ``ast`` on the source files, nothing is imported, so ``status`` and a no-op ``run``
 stay cheap. Third-party libraries are not followed (their versions are recorded in the manifest).
 
-Files are named by their place in the package, e.g. ``go_core/losses.py``, ``go_pipeline/steps/coarse.py``,
-``go_core/render/csrc/rasterize.cpp`` (the same names whether installed editable or from a wheel).
+Files are named by their place in the package, e.g. ``go_core/coarse/losses.py``,
+``go_pipeline/steps/coarse.py``, ``go_core/render/csrc/rasterize.cpp`` (the same names whether installed
+editable or from a wheel).
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+from go_core.io.weights_cache import lpips_weights_file
 from go_pipeline.hashing import FileHashCache, combine_file_hashes, folder_hashes
 
 DEPENDENCIES = ("torch", "numpy", "pycolmap", "opencv-contrib-python-headless")
@@ -58,15 +59,6 @@ def path_hash(path: Path, cache: FileHashCache | None) -> str:
     return "missing"
 
 
-def lpips_weights_file(net: str) -> Path:
-    """Where ``go-pipeline weights fetch`` puts the LPIPS weights of ``net`` (the same place as
-    go_core.metrics.lpips_weights.weights_path, without importing go_core.metrics, which imports torch:
-    ``status`` stays fast; tests/test_trust.py checks the two agree)."""
-    env = os.environ.get("GO_PIPELINE_CACHE")
-    root = Path(env).expanduser() if env else Path.home() / ".cache" / "go-pipeline"
-    return root / "lpips" / f"{net}.safetensors"
-
-
 def lpips_weight_hashes(nets: list[str], cache: FileHashCache | None) -> dict[str, str]:
     hashes = {}
     for net in sorted(set(nets)):
@@ -97,7 +89,7 @@ def external_inputs(params: dict[str, Any], cache: FileHashCache | None) -> dict
     return result
 
 
-def describe_changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
+def describe_external_changes(old: dict[str, Any] | None, new: dict[str, Any]) -> list[str]:
     """One reason per changed item, for ``status``."""
     if old is None:
         return []

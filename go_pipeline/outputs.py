@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from go_core import artifacts as art
+from go_core.io.atomic import readable
 from go_pipeline import store
 
 OUTPUTS_DIR = "outputs"
@@ -43,14 +44,6 @@ def _copy_atomic(src: Path, dst: Path) -> None:
     shutil.copyfile(src, tmp)
     os.replace(tmp, dst)
     readable(dst)
-
-
-def readable(path: Path) -> Path:
-    """Give a published file the permissions a new file gets (temp files are private, 0600)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(path, 0o666 & ~mask)
-    return path
 
 
 def _read_index(out: Path) -> dict[str, Any]:

@@ -41,6 +41,7 @@ class StepSpec:
     description: str = ""
     params_class: type | None = None  # the step's typed params (None: untyped, the defaults give the types)
     upstream_params: dict[str, str] = field(default_factory=dict)  # field -> step whose params fill it
+    optional_outputs: tuple[str, ...] = ()  # written only in some runs (go_pipeline.catalog)
 
     @property
     def function(self) -> str:
@@ -351,7 +352,7 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
     inputs = body.get("inputs") or {}
     if not isinstance(inputs, dict) or not all(isinstance(v, str) for v in inputs.values()):
         raise PipelineError(f"step {name!r}: inputs must map input name -> step name (or '@scene')", path)
-    from go_pipeline.catalog import declared_outputs
+    from go_pipeline.catalog import declared_outputs, optional_outputs
 
     catalogued = declared_outputs(module)
     if catalogued is not None and "outputs" in body and set(body["outputs"] or []) != set(catalogued):
@@ -385,6 +386,7 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
         dict(params),
         str(body.get("description") or ""),
         params_class=cls,
+        optional_outputs=optional_outputs(module),
     )
 
 

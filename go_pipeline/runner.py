@@ -763,9 +763,9 @@ def _what_changed(
             reasons.append(
                 f"param {p} changed {old_params.get(p, '<unset>')!r} -> {new_params.get(p, '<unset>')!r}"
             )
-    from go_pipeline.external import describe_changes
+    from go_pipeline.external import describe_external_changes
 
-    reasons.extend(describe_changes(previous.get("external"), _external(plan, name)))
+    reasons.extend(describe_external_changes(previous.get("external"), _external(plan, name)))
     if previous.get("seed") != plan.seed:
         reasons.append(f"seed changed {previous.get('seed')} -> {plan.seed}")
     if inputs is not None:

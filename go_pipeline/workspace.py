@@ -130,7 +130,7 @@ def save_settings(workdir: Path, pipeline, settings: Settings) -> Path:
     """Write ``<workdir>/params.yaml`` atomically (only when its content changes)."""
     import yaml
 
-    from go_core.io.atomic import atomic_write_text
+    from go_core.io.atomic import atomic_write_text, readable
 
     body = settings.to_dict()
     body["effective"] = non_default(pipeline, settings)
@@ -141,6 +141,4 @@ def save_settings(workdir: Path, pipeline, settings: Settings) -> Path:
             return path
     except OSError:
         pass
-    from go_pipeline.outputs import readable
-
     return readable(atomic_write_text(path, text))

@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
-from go_core.depth_prior import load_depth_priors
+from go_core.coarse.depth_prior import load_depth_priors
+from go_core.coarse.loop import CheckpointSpec, TrainView, optimize
 from go_core.io.curves import write_curves
-from go_core.pose_refine import apply_corrections
+from go_core.poses.refine import apply_corrections
 from go_core.seeding import torch_generator
-from go_core.training import CheckpointSpec, TrainView, optimize
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import CoarseParams

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
-from go_core.depth_prior import DepthEstimator, save_depth_priors
+from go_core.coarse.depth_prior import DepthEstimator, save_depth_priors
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import DepthParams

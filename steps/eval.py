@@ -123,8 +123,8 @@ def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: Eval
     the model frozen (the paper's CF protocol)."""
     import torch
 
-    from go_core.alignment import similarity_from_cameras
-    from go_core.pose_refine import refine_pose
+    from go_core.poses.refine import refine_pose
+    from go_core.poses.similarity import similarity_from_cameras
 
     has_cameras = art.CAMERAS.path(inputs["coarse"]).is_file()  # a coarse step of your own may not write it
     refined = has_cameras and art.read_json(inputs["coarse"], art.CAMERAS)["refined"]

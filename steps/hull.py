@@ -4,8 +4,8 @@ cameras' look-at point whose size follows from the cameras' field of view (so no
 
 Outputs ``gaussians.npz`` (go_core.gaussians) and ``hull.json`` (point count, bounding box, volume estimate);
 with ``align_poses`` first turns and moves the training cameras until their silhouettes agree
-(go_core.silhouette_align: poses from another source are rarely exact) and writes them as ``cameras.json``,
-which coarse starts from.
+(go_core.poses.silhouette_align: poses from another source are rarely exact) and writes them as
+``cameras.json``, which coarse starts from.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from go_core import artifacts as art
 from go_core.camera import look_at_point
-from go_core.hull import points_to_gaussians, random_init, visual_hull
+from go_core.coarse.hull import points_to_gaussians, random_init, visual_hull
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import HullParams
@@ -36,11 +36,12 @@ def random_box(cameras) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _aligned_cameras(ctx, cams, masks, params: HullParams, info: dict):
-    """hull.align_poses: the training cameras turned until their silhouettes agree (go_core.silhouette_align),
-    written as ``cameras.json`` for coarse; coverage before/after and the turns go to ``hull.json``."""
+    """hull.align_poses: the training cameras turned until their silhouettes agree
+    (go_core.poses.silhouette_align), written as ``cameras.json`` for coarse; coverage before/after and the
+    turns go to ``hull.json``."""
+    from go_core.coarse.hull import hull_bounds
     from go_core.errors import SceneError
-    from go_core.hull import hull_bounds
-    from go_core.silhouette_align import SilhouetteAlignSettings, align_cameras
+    from go_core.poses.silhouette_align import SilhouetteAlignSettings, align_cameras
 
     if len(cams) < 3:
         raise SceneError(f"hull.align_poses needs at least 3 training views, the scene has {len(cams)}")

@@ -20,12 +20,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 from go_core import artifacts as art
 from go_core.errors import SceneError
 from go_core.repair.loo import load_clean_and_mask, load_run, run_is_done, run_job, run_one
 from go_core.repair.noise import difference_stats
+from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
@@ -34,9 +34,9 @@ if TYPE_CHECKING:
 
 
 def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
+    from go_core.coarse.loop import scene_extent
     from go_core.io.npz import write_npz_deterministic
     from go_core.repair.data import training_views
-    from go_core.training import scene_extent
 
     missing = repair_weights_missing(inputs)
     if missing:  # no repair model: the pairs would never be used, so don't pay for N coarse runs

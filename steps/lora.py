@@ -28,10 +28,9 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from go_core import artifacts as art
 from go_pipeline.steps._common import repair_weights_missing, write_skipped
 from go_pipeline.steps.weights import compact_info, repair_model, weight_paths
-
-from go_core import artifacts as art
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import LoraParams

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.errors import PipelineError, SceneError
-from go_core.masking import OnnxSegmenter, grabcut_mask, mask_stats, validate_mask
+from go_core.scene.masking import OnnxSegmenter, grabcut_mask, mask_stats, validate_mask
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import MaskParams

@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 from go_core import artifacts as art
 from go_core.io.atomic import atomic_write
@@ -22,6 +21,7 @@ from go_core.repair.data import on_white, render_rgb_alpha, to_uint8, training_v
 from go_core.repair.noise import NoiseStats
 from go_core.repair.pairs import noise_pair
 from go_core.seeding import torch_generator
+from go_pipeline.steps._common import repair_weights_missing, write_skipped
 
 SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 

@@ -19,9 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Literal
 
+from go_core.coarse.settings import Backend, CoarseConfig
 from go_core.config import setting
 from go_core.repair.settings import LooSettings, RepairSettings
-from go_core.train_settings import Backend, CoarseConfig
 
 Precision = Literal["auto", "bf16", "fp16", "fp32"]
 
@@ -77,7 +77,7 @@ class HullParams:
 
 @dataclass
 class CoarseParams(CoarseConfig):
-    """The coarse 3DGS settings (go_core.train_settings.CoarseConfig) and the step's checkpoint period."""
+    """The coarse 3DGS settings (go_core.coarse.settings.CoarseConfig) and the step's checkpoint period."""
 
     checkpoint_every: int = setting(500, ge=0, doc="0: no mid-step checkpoints")
 

@@ -28,12 +28,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from go_pipeline.steps._common import write_skipped
-
 from go_core import artifacts as art
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write
 from go_core.io.curves import write_curves
+from go_pipeline.steps._common import write_skipped
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import RepairParams

@@ -16,13 +16,13 @@ if TYPE_CHECKING:
 
 
 def _estimate_training_poses(scene, params: SceneParams, seed: int, folder: Path) -> None:
-    """Replace the training cameras by SfM's (go_core.pose_estimate), or raise one SceneError naming the
+    """Replace the training cameras by SfM's (go_core.poses.estimate), or raise one SceneError naming the
     views and why: a pose that may be wrong never reaches the hull."""
     from dataclasses import replace
 
     from go_core.camera import Camera
-    from go_core.pose_estimate import estimate_poses
-    from go_core.posecheck import PoseCheckError
+    from go_core.errors import PoseCheckError
+    from go_core.poses.estimate import estimate_poses
 
     names = ", ".join(v.name for v in scene.train)
     try:  # one thread: COLMAP's results repeat exactly only then (the step is deterministic)

@@ -159,9 +159,9 @@ def synthetic_inputs(root: Path, size: int = 64, n: int = 150) -> dict[str, Path
     import numpy as np
 
     from go_core.gaussians import Gaussians
-    from go_core.masking import save_masks
     from go_core.repair.data import render_rgb_alpha
     from go_core.scene.artifact import save_scene_artifact
+    from go_core.scene.masking import save_masks
     from go_core.scene.types import Scene, View
 
     g = torch.Generator().manual_seed(0)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import torch
 
+from go_core.coarse.optim import PARAM_NAMES, GaussianOptimizer, LearningRates
 from go_core.gaussians import Gaussians
-from go_core.optim import PARAM_NAMES, GaussianOptimizer, LearningRates
 
 
 def _gaussians(n: int, seed: int) -> Gaussians:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from go_core.alignment import AlignmentError, Similarity, similarity_from_cameras, umeyama
 from go_core.camera import Camera, look_at
+from go_core.poses.similarity import AlignmentError, Similarity, similarity_from_cameras, umeyama
 
 
 def _cameras(n: int, seed: int = 0) -> list[Camera]:

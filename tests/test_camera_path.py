@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from go_core.camera import look_at
-from go_core.trajectory import camera_path_cameras
+from go_core.render.trajectory import camera_path_cameras
 
 
 def _ring(n: int, radius: float = 3.0):

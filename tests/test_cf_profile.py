@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from go_core.alignment import Similarity
 from go_core.camera import Camera, look_at_point
+from go_core.poses.similarity import Similarity
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket"
 TURN = Rotation.from_euler("xyz", [20, -35, 50], degrees=True).as_matrix()
@@ -33,14 +33,14 @@ def test_estimated_poses_flow_to_a_cf_evaluation(tmp_path, monkeypatch):
     """SfM is replaced by the scene's own training cameras moved by a planted similarity (an SfM frame):
     the scene step takes them (keeping the given poses), coarse refines in that frame, and eval recovers
     the planted similarity to align the test cameras."""
-    import go_core.posecheck as posecheck
+    import go_core.poses.sfm as sfm
     from go_pipeline.runner import run_pipeline
 
     def fake_sfm(views, **kw):
         cams = {v.name: PLANTED.camera(v.camera) for v in views}
-        return posecheck.SfmResult(cams, 0.4, {v.name: 500 for v in views}, 800, 6)
+        return sfm.SfmResult(cams, 0.4, {v.name: 500 for v in views}, 800, 6)
 
-    monkeypatch.setattr(posecheck, "reconstruct", fake_sfm)
+    monkeypatch.setattr(sfm, "reconstruct", fake_sfm)
     overrides = {
         "scene.poses": "estimate",
         "coarse.refine_poses": True,
@@ -148,7 +148,7 @@ def test_hull_alignment_turns_perturbed_cameras_back_and_coarse_starts_from_them
     moves them back towards the truth (object points reproject closer), coarse fits with those cameras
     (its cameras.json says aligned), and eval uses the CF protocol."""
     from go_core import artifacts as art
-    from go_core.alignment import similarity_from_cameras
+    from go_core.poses.similarity import similarity_from_cameras
     from go_core.scene.loader import load_scene
     from go_pipeline.runner import run_pipeline
 

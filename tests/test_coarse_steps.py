@@ -169,10 +169,9 @@ def test_steps_end_to_end(tmp_path):
 
 
 def test_mask_step_rejects_bad_choices(tmp_path):
-    from go_pipeline.steps import mask
-
     from go_core.config import SettingError
     from go_core.errors import PipelineError
+    from go_pipeline.steps import mask
 
     inputs = {"scene": _scene(tmp_path)}
     with pytest.raises(SettingError, match="method: must be one of 'auto' | 'provided'"):
@@ -187,10 +186,9 @@ def test_a_collapsed_coarse_model_is_an_error_not_a_result(tmp_path, monkeypatch
     """When optimisation leaves almost no Gaussians (pruning never removes the last one, so the loop is
     stood in for by one that ends with 3 of 500), the step fails with CollapsedModelError and writes no
     gaussians.npz."""
-    from go_pipeline.steps import coarse, hull, mask
-
+    from go_core.coarse.loop import TrainStats
     from go_core.errors import CollapsedModelError
-    from go_core.training import TrainStats
+    from go_pipeline.steps import coarse, hull, mask
 
     inputs = {"scene": _scene(tmp_path)}
     ctx = Ctx(tmp_path, "mask")
@@ -212,8 +210,8 @@ def test_a_collapsed_coarse_model_is_an_error_not_a_result(tmp_path, monkeypatch
 
 
 def test_collapse_threshold():
+    from go_core.coarse.loop import TrainStats
     from go_core.errors import CollapsedModelError
-    from go_core.training import TrainStats
 
     TrainStats(initial_count=20000, final_count=200).check_not_collapsed()  # 1 % left: a (small) model
     with pytest.raises(CollapsedModelError):

@@ -22,8 +22,8 @@ def test_coarse_code_covers_its_library_and_kernels_scene_does_not():
     scene = codehash.fingerprint("go_pipeline.steps.scene").files
     for name in (
         "go_pipeline/steps/coarse.py",
-        "go_core/training.py",  # imported by the step
-        "go_core/losses.py",  # imported by training, transitively
+        "go_core/coarse/loop.py",  # imported by the step
+        "go_core/coarse/losses.py",  # imported by training, transitively
         "go_core/render/__init__.py",  # a package run on the way to go_core.render.cpu
         "go_core/render/csrc/rasterize.cpp",  # native sources of the extension it loads
         "go_core/render/csrc/simd.h",
@@ -31,7 +31,7 @@ def test_coarse_code_covers_its_library_and_kernels_scene_does_not():
     ):
         assert name in coarse, name
     assert "go_pipeline/steps/scene.py" in scene and "go_core/scene/artifact.py" in scene
-    assert not any(n.startswith("go_core/render/") or n == "go_core/losses.py" for n in scene)
+    assert not any(n.startswith("go_core/render/") or n == "go_core/coarse/losses.py" for n in scene)
     assert not any(n.startswith("go_pipeline/") and "/steps/" not in n for n in coarse)  # not the runner
 
 
@@ -74,7 +74,9 @@ def test_editing_a_library_module_changes_exactly_the_steps_that_import_it(go_co
     assert {"coarse", "eval"} <= changed  # training -> losses; eval's metrics -> losses
     assert not changed & {"scene", "mask"}
     files = codehash.fingerprint("go_pipeline.steps.coarse").files
-    assert codehash.changed_files({**files, "go_core/losses.py": "0" * 64}, files) == ["go_core/losses.py"]
+    assert codehash.changed_files({**files, "go_core/coarse/losses.py": "0" * 64}, files) == [
+        "go_core/coarse/losses.py"
+    ]
 
 
 def test_editing_a_kernel_source_changes_the_steps_that_load_the_extension(go_core_copy):

@@ -139,10 +139,9 @@ def test_ncnn_param_parser_reads_arrays_and_refuses_unknown_layers():
 
 @pytest.mark.parametrize("damage", ["missing", "partial", "corrupt"])
 def test_bad_compact_weights_are_one_error_naming_file_and_fetch(tmp_path, monkeypatch, damage):
-    from go_pipeline.steps import weights
-
     from go_core.compact.weights import compact_path
     from go_core.errors import MissingWeightsError
+    from go_pipeline.steps import weights
 
     root = tmp_path / "cache"
     path = tiny_compact(root)
@@ -255,7 +254,7 @@ def test_conv_lora_starts_as_the_identity_and_merges_exactly(tiny_cache):
 def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
     upstream, tmp_path, tiny_cache, monkeypatch
 ):
-    import go_core.training as loop
+    import go_core.coarse.loop as loop
     from go_core.gaussians import Gaussians
 
     root, dirs = upstream

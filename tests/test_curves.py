@@ -9,8 +9,8 @@ from types import SimpleNamespace
 
 import torch
 
+from go_core.coarse.loop import train_psnr, view_target
 from go_core.io.curves import curves_csv
-from go_core.training import train_psnr, view_target
 
 
 def test_curves_csv_columns_and_rows():

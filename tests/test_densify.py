@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
-from go_core.densify import DensifyConfig, DensifyStrategy
+from go_core.coarse.densify import DensifyConfig, DensifyStrategy
+from go_core.coarse.optim import GaussianOptimizer, LearningRates
 from go_core.gaussians import Gaussians
-from go_core.optim import GaussianOptimizer, LearningRates
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 

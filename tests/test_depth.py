@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from go_core.depth_prior import DepthEstimator, load_depth_priors, save_depth_priors
+from go_core.coarse.depth_prior import DepthEstimator, load_depth_priors, save_depth_priors
 from go_core.errors import MissingWeightsError
 from go_pipeline.pipeline import step_params
 
@@ -72,8 +72,9 @@ def test_depth_artifact_round_trip_and_skip(tmp_path):
 
 
 def test_depth_step_with_a_local_model_writes_one_map_per_training_view(tiny_dpt, tmp_path):
-    from go_pipeline.steps import depth
     from test_coarse_steps import Ctx, _scene
+
+    from go_pipeline.steps import depth
 
     folder, _ = tiny_dpt
     inputs = {"scene": _scene(tmp_path)}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from go_core.floaters import FloaterConfig, floater_mask, knn_mean_distance
+from go_core.coarse.floaters import FloaterConfig, floater_mask, knn_mean_distance
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from go_core.losses import l1, mask_bce, photometric_terms, ssim
+from go_core.coarse.losses import l1, mask_bce, photometric_terms, ssim
 from go_core.render.api import DEPTH_EPS
 from go_core.render.cpu import finish_cpu
 

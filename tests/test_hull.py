@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from go_core.camera import Camera, look_at
+from go_core.coarse.hull import points_to_gaussians, visual_hull
 from go_core.errors import EmptyHullError
-from go_core.hull import points_to_gaussians, visual_hull
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 

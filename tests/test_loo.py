@@ -68,9 +68,8 @@ def test_loo_pairs_and_statistics(done):
 
 
 def test_killed_loo_resumes_without_redoing_finished_runs(done, tmp_path, monkeypatch):
-    from go_pipeline.steps import loo
-
     from go_core.repair import loo as core
+    from go_pipeline.steps import loo
 
     _, dirs, first = done
     calls: list[int] = []
@@ -107,7 +106,7 @@ def test_parallel_workers_give_the_same_artifacts(done, tmp_path):
 
 
 def test_compressed_schedule_scales_every_step_schedule_to_phase_one():
-    from go_core.training import CoarseConfig
+    from go_core.coarse.loop import CoarseConfig
 
     # 10 000 its: densify 500..6000 every 100, reset 1000, floaters 500..6000 every 500
     base = CoarseConfig(iterations=10_000)

@@ -7,7 +7,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from go_core.losses import depth_loss, dssim, l1, mask_bce, normalize_depth, ssim, ssim_map
+from go_core.coarse.losses import depth_loss, dssim, l1, mask_bce, normalize_depth, ssim, ssim_map
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 

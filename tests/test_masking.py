@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from go_core.errors import MissingWeightsError, SceneError
-from go_core.masking import OnnxSegmenter, grabcut_mask, load_masks, save_masks, validate_mask
+from go_core.scene.masking import OnnxSegmenter, grabcut_mask, load_masks, save_masks, validate_mask
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 

@@ -1,4 +1,4 @@
-"""Feature matches that disagree with the poses against the silhouettes (go_core.match_silhouettes), and
+"""Feature matches that disagree with the poses against the silhouettes (go_core.poses.silhouettes), and
 DISK's sub-pixel keypoints (go_core.features.disk.subpixel_peaks).
 
 The object is analytic (two ellipsoids, exact masks), so the true cameras are known: matches made with a
@@ -13,9 +13,9 @@ import torch
 from _ellipsoids import ellipsoid_mask, ring_cameras, turned
 
 from go_core.features.disk import strict_maxima, subpixel_peaks
-from go_core.match_silhouettes import lowest_coverage, pair_turns, refutation_floor, turn_to_matches
-from go_core.pose_refine import rotation_angle_deg
-from go_core.pose_verify import MIN_COVERAGE
+from go_core.poses.refine import rotation_angle_deg
+from go_core.poses.silhouettes import lowest_coverage, pair_turns, refutation_floor, turn_to_matches
+from go_core.poses.verify import MIN_COVERAGE
 
 
 @pytest.fixture(scope="module")

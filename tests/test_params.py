@@ -10,11 +10,11 @@ from dataclasses import fields
 from pathlib import Path
 
 import pytest
-from go_pipeline.steps.params import PARAMS_CLASSES, CoarseParams, LooParams, RepairParams, upstream_fields
 
 from go_core.config import field_types, to_mapping
 from go_core.errors import PipelineError
 from go_pipeline.pipeline import load_pipeline, step_params
+from go_pipeline.steps.params import PARAMS_CLASSES, CoarseParams, LooParams, RepairParams, upstream_fields
 
 REPO = Path(__file__).resolve().parents[1]
 

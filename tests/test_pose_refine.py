@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from go_core.camera import Camera, look_at
 from go_core.gaussians import Gaussians
-from go_core.pose_refine import PoseCorrection, refine_pose, rotation_angle_deg, so3_exp
+from go_core.poses.refine import PoseCorrection, refine_pose, rotation_angle_deg, so3_exp
 from go_core.render import render_camera
 from go_core.render.synthetic import random_scene
 
@@ -87,7 +87,7 @@ SPREAD = 1.5  # the object fills the view: rotation and translation are told apa
 
 
 def _joint_scene():
-    from go_core.training import TrainView
+    from go_core.coarse.loop import TrainView
 
     scene = random_scene(800, 64, 64, cams=6, sh_degree=0, seed=5, spread=SPREAD, scale=0.08)
     means, quats, scales, opac, sh, vms, Ks = scene
@@ -110,7 +110,7 @@ def _joint_scene():
 
 
 def _joint_config(refine: bool, iterations: int = 800):
-    from go_core.train_settings import CoarseConfig
+    from go_core.coarse.settings import CoarseConfig
 
     return CoarseConfig(
         iterations=iterations,
@@ -130,9 +130,9 @@ def _joint_config(refine: bool, iterations: int = 800):
 
 
 def test_joint_refinement_recovers_a_planted_3_degree_error():
-    from go_core.pose_refine import apply_corrections
+    from go_core.coarse.loop import optimize
+    from go_core.poses.refine import apply_corrections
     from go_core.seeding import torch_generator
-    from go_core.training import optimize
 
     cams, views, init = _joint_scene()
     before = rotation_angle_deg(views[3].camera.world_to_cam, cams[3].world_to_cam)
@@ -148,8 +148,8 @@ def test_joint_refinement_recovers_a_planted_3_degree_error():
 
 
 def test_joint_refinement_resumes_bit_identical(tmp_path):
+    from go_core.coarse.loop import CheckpointSpec, optimize
     from go_core.seeding import torch_generator
-    from go_core.training import CheckpointSpec, optimize
 
     _, views, init = _joint_scene()
     config = _joint_config(True, iterations=120)

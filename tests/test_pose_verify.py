@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from go_core.camera import Camera, look_at
-from go_core.pose_verify import mask_coverage, rotation_spread_deg, verify_poses
+from go_core.poses.verify import mask_coverage, rotation_spread_deg, verify_poses
 
 SEMI_AXES = np.array([0.6, 0.4, 0.9])  # an ellipsoid: no symmetry a wrong rotation could hide in
 
@@ -110,7 +110,7 @@ def _write_rgba(folder, masks):
 @pytest.mark.parametrize("planted", ["turntable", "turned", "unregistered"])
 def test_estimate_command_refuses_degenerate_results(tmp_path, monkeypatch, capsys, four, planted):
     """`poses --estimate` with planted SfM outputs: exit 1, each failed check printed, nothing written."""
-    import go_core.posecheck as posecheck
+    import go_core.poses.sfm as sfm
     from go_pipeline.cli import main
 
     cams, masks = four
@@ -124,14 +124,14 @@ def test_estimate_command_refuses_degenerate_results(tmp_path, monkeypatch, caps
     cams_by_name = {}
     for n, c in zip(names, est, strict=True):
         cams_by_name[n] = Camera(n, c.width, c.height, c.K, c.world_to_cam)
-    result = posecheck.SfmResult(
+    result = sfm.SfmResult(
         cameras=cams_by_name,
         mean_reprojection_px=0.3,
         observations=dict.fromkeys(names, 150),
         num_points=300,
         num_verified_pairs=6,
     )
-    monkeypatch.setattr(posecheck, "reconstruct", lambda views, **kw: result)
+    monkeypatch.setattr(sfm, "reconstruct", lambda views, **kw: result)
     _write_rgba(tmp_path / "photos", masks)
     out, checks = tmp_path / "photos" / "transforms_train.json", tmp_path / "checks.json"
     rc = main(["poses", str(tmp_path / "photos"), "--estimate", str(out), "--json", str(checks)])
@@ -147,20 +147,20 @@ def test_estimate_command_refuses_degenerate_results(tmp_path, monkeypatch, caps
 
 
 def test_estimate_command_writes_verified_poses_loadable_as_a_scene(tmp_path, monkeypatch, four):
-    import go_core.posecheck as posecheck
+    import go_core.poses.sfm as sfm
     from go_core.scene import load_scene
     from go_pipeline.cli import main
 
     cams, masks = four
     names = [f"r_{i}.png" for i in range(4)]
-    result = posecheck.SfmResult(
+    result = sfm.SfmResult(
         {n: Camera(n, c.width, c.height, c.K, c.world_to_cam) for n, c in zip(names, cams, strict=True)},
         0.3,
         dict.fromkeys(names, 150),
         300,
         6,
     )
-    monkeypatch.setattr(posecheck, "reconstruct", lambda views, **kw: result)
+    monkeypatch.setattr(sfm, "reconstruct", lambda views, **kw: result)
     _write_rgba(tmp_path / "photos", masks)
     out = tmp_path / "photos" / "transforms_train.json"
     assert main(["poses", str(tmp_path / "photos"), "--estimate", str(out)]) == 0

@@ -7,16 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from go_core.alignment import umeyama
 from go_core.camera import Camera
-from go_core.epipolar import epipolar_distances
-from go_core.posecheck import (
-    build_tracks,
-    check_poses,
-    leave_one_out_errors,
-    reconstruct,
-    triangulate_dlt,
-)
+from go_core.poses.check import check_poses
+from go_core.poses.epipolar import epipolar_distances
+from go_core.poses.sfm import reconstruct
+from go_core.poses.similarity import umeyama
+from go_core.poses.tracks import build_tracks, leave_one_out_errors, triangulate_dlt
 from go_core.scene import load_scene
 
 
@@ -135,7 +131,7 @@ def test_estimate_poses_with_sfm(shared_data):
 
 
 def test_blame_logic_for_disagreeing_pairs():
-    from go_core.posecheck import _blame_inconsistent_pairs
+    from go_core.poses.check import _blame_inconsistent_pairs
 
     ok = {(0, 1): None, (1, 2): None, (0, 2): None}
     # view 3 disagrees with 0, 1 and 2, which agree with each other: only 3 is blamed
@@ -152,7 +148,7 @@ def test_blame_logic_for_disagreeing_pairs():
 
 
 def test_set_wide_disagreement_is_no_evidence_but_one_wrong_camera_is():
-    from go_core.posecheck import matches_disagree_set_wide
+    from go_core.poses.check import matches_disagree_set_wide
 
     pairs = [(i, j) for i in range(6) for j in range(i + 1, 6)]
     # one wrong camera (3) among 6: only its 5 of 15 pairs disagree

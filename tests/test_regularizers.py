@@ -1,4 +1,5 @@
-"""Sparse-view regularisers (go_core/regularizers.py) against references, and the coarse budget knob."""
+"""Sparse-view regularisers (go_core/coarse/regularizers.py) against references, and the coarse budget
+knob."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import pytest
 import torch
 
 from go_core.camera import look_at
-from go_core.gaussians import Gaussians
-from go_core.regularizers import (
+from go_core.coarse.loop import CoarseConfig, optimize
+from go_core.coarse.regularizers import (
     RegularizerConfig,
     anisotropy_loss,
     drop_compensation,
@@ -20,8 +21,8 @@ from go_core.regularizers import (
     outside_alpha_loss,
     regularization_loss,
 )
+from go_core.gaussians import Gaussians
 from go_core.render import render
-from go_core.training import CoarseConfig, optimize
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 

@@ -266,9 +266,9 @@ def test_invalid_gaussians_give_one_clear_error_at_step_start(tmp_path, field, i
     """NaN/inf means, quaternions, opacities or colours and scales >= 1e20 (which the rasterizer turns into
     NaN gradients or drops silently) are one error naming the file, the count and the first index, when a
     step loads the model or starts optimising it."""
+    from go_core.coarse.loop import CoarseConfig, optimize
     from go_core.errors import InvalidGaussiansError
     from go_core.gaussians import Gaussians
-    from go_core.training import CoarseConfig, optimize
 
     g = Gaussians.from_points(torch.rand(10, 3), torch.rand(10, 3), torch.full((10,), 0.05), 0.5, 1)
     getattr(g, field)[index] = value

@@ -82,9 +82,8 @@ def test_noise_pairs_step_fixes_config(upstream):
 
 
 def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_path):
-    from go_pipeline.steps import repair
-
     from go_core import artifacts
+    from go_pipeline.steps import repair
 
     _, dirs, _ = upstream
     ctx = _lora(tmp_path, dirs, {})
@@ -144,12 +143,11 @@ def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monke
 
 
 def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
-    from go_pipeline.steps import repair
-
     from go_core import artifacts
     from go_core.diffusion.configs import SD15_SCHEDULER
     from go_core.repair.arcs import RepairArcs
     from go_core.scene.artifact import load_scene_artifact
+    from go_pipeline.steps import repair
 
     _, dirs, weights = upstream
     lctx = _lora(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})

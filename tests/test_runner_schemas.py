@@ -71,9 +71,9 @@ def test_step_manifest_schema_rejects_bad_values():
     bad["key"] = "XYZ"
     bad["wall_s"] = -1
     bad["started"] = "yesterday"
-    bad["code"] = {"go_core/losses.py": "not a hash"}
+    bad["code"] = {"go_core/coarse/losses.py": "not a hash"}
     assert [p.split(":")[0] for p in schema_problems("step_manifest", bad)] == [
-        "at code/go_core/losses.py",
+        "at code/go_core/coarse/losses.py",
         "at key",
         "at started",
         "at wall_s",

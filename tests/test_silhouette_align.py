@@ -1,5 +1,6 @@
-"""Silhouette-coherence rotation alignment (go_core.silhouette_align) on an analytic object: masks are exact
-ray/ellipsoid intersections, so the true cameras are known and planted rotation errors are measurable."""
+"""Silhouette-coherence rotation alignment (go_core.poses.silhouette_align) on an analytic object: masks
+are exact ray/ellipsoid intersections, so the true cameras are known and planted rotation errors are
+measurable."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import numpy as np
 import pytest
 from _ellipsoids import ellipsoid_mask, ring_cameras, turned
 
-from go_core.alignment import similarity_from_cameras
 from go_core.camera import Camera
-from go_core.hull import hull_bounds
-from go_core.silhouette_align import SilhouetteAlignSettings, align_cameras
+from go_core.coarse.hull import hull_bounds
+from go_core.poses.silhouette_align import SilhouetteAlignSettings, align_cameras
+from go_core.poses.similarity import similarity_from_cameras
 
 
 def _moved(cam: Camera, share: float, rng: np.random.Generator) -> Camera:

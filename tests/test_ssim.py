@@ -7,7 +7,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from go_core.losses import ssim as loss_ssim
+from go_core.coarse.losses import ssim as loss_ssim
 from go_core.metrics.ssim import ssim
 
 

@@ -1,7 +1,7 @@
 """The compiled SSIM loss kernel (go_core/kernels/csrc/ssim.cpp) against the float64 torch reference.
 
-``go_core.losses.ssim`` runs the kernel for one float32 CPU image pair; ``ssim_map`` (torch, autograd) is the
-reference, itself checked against scikit-image and finite differences in tests/test_losses.py.
+``go_core.coarse.losses.ssim`` runs the kernel for one float32 CPU image pair; ``ssim_map`` (torch, autograd)
+is the reference, itself checked against scikit-image and finite differences in tests/test_losses.py.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from go_core.losses import SSIM_C1, SSIM_C2, _window64, ssim, ssim_map
+from go_core.coarse.losses import SSIM_C1, SSIM_C2, _window64, ssim, ssim_map
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 
@@ -188,7 +188,7 @@ def test_mask_bce_equals_torch_binary_cross_entropy(dtype):
     """``mask_bce`` (a lerp of two logs, cheaper than F.binary_cross_entropy) has the same value/gradient."""
     import torch.nn.functional as F
 
-    from go_core.losses import mask_bce
+    from go_core.coarse.losses import mask_bce
 
     g = torch.Generator().manual_seed(5)
     alpha = torch.rand(1, 64, 48, 1, generator=g, dtype=dtype)

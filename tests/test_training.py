@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from go_core.camera import look_at
+from go_core.coarse.loop import CheckpointSpec, CoarseConfig, NoDensify, TrainView, optimize
 from go_core.config import SettingError
 from go_core.gaussians import Gaussians
 from go_core.render import render_gaussians
-from go_core.training import CheckpointSpec, CoarseConfig, NoDensify, TrainView, optimize
 
 BACKEND = "cpu"
 SIZE = 24
@@ -189,7 +189,7 @@ def test_config_from_flat_settings_is_checked():
 
 
 def test_depth_prior_term_enters_the_loss_with_gradients():
-    from go_core.training import view_loss
+    from go_core.coarse.loop import view_loss
 
     views = _views()
     v = views[0]

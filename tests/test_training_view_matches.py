@@ -10,7 +10,7 @@ from _benchmark_module import benchmark_module
 from _ellipsoids import ring_cameras
 from scipy.spatial import cKDTree
 
-from go_core.epipolar import epipolar_distances, fundamental_from_poses
+from go_core.poses.epipolar import epipolar_distances, fundamental_from_poses
 
 HALF = 0.5  # the cube's half size
 

@@ -41,7 +41,7 @@ def test_planted_pickle_is_not_executed_sanity(tmp_path):
 
 
 def test_planted_coarse_checkpoint_does_not_execute(tmp_path):
-    from go_core.training import CheckpointSpec, _load_newest
+    from go_core.coarse.loop import CheckpointSpec, _load_newest
 
     canary = tmp_path / "canary"
     _plant(tmp_path / "ckpt" / "ckpt_9999999.pt", canary)
@@ -347,8 +347,8 @@ def test_lpips_weights_and_library_versions_are_in_the_key(tmp_path, monkeypatch
     assert set(absent["libraries"]) == {"torch", "numpy", "pycolmap", "opencv-contrib-python-headless"}
     assert absent["libraries"]["torch"] == dependency_versions()["torch"] != "absent"
     assert "lpips_weights" not in external_inputs({"iterations": 3}, None)
+    from go_core.io.weights_cache import lpips_weights_file
     from go_core.metrics.lpips_weights import weights_path
-    from go_pipeline.external import lpips_weights_file
 
     assert lpips_weights_file("vgg") == weights_path("vgg") == weights
     # ... and the runner keys the eval step with them

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from go_core.camera import fit_ellipse, look_at, look_at_point
-from go_core.trajectory import contact_sheet, turntable_cameras
+from go_core.render.trajectory import contact_sheet, turntable_cameras
 
 pytestmark = pytest.mark.usefixtures("single_thread")  # small tensors: one thread is faster
 

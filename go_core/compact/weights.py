@@ -22,7 +22,7 @@ from pathlib import Path
 
 from go_core.errors import MissingWeightsError
 from go_core.io.atomic import atomic_write
-from go_core.weights_cache import FETCH_COMMAND, cache_dir
+from go_core.io.weights_cache import FETCH_COMMAND, cache_dir
 
 
 @dataclass(frozen=True)

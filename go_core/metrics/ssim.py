@@ -1,4 +1,4 @@
-"""SSIM as an evaluation metric. Reuses the one differentiable 3DGS SSIM (``go_core.losses.ssim_map``:
+"""SSIM as an evaluation metric. Reuses the one differentiable 3DGS SSIM (``go_core.coarse.losses.ssim_map``:
 11×11 Gaussian window, σ = 1.5, zero padding) so training and evaluation measure the same thing.
 
 ``border="pad"`` (the 3DGS / GaussianObject evaluation) averages the full zero-padded map;
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import torch
 
-from go_core.losses import SSIM_WINDOW, ssim_map
+from go_core.coarse.losses import SSIM_WINDOW, ssim_map
 
 
 def ssim_metric_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -1,7 +1,7 @@
 """Build once per machine and load the compiled CPU rasterizer (`python -m go_core.render.build` prebuilds).
 
 The extension (the rasterizer from go_core/render/csrc, and the kernels that are not rendering from
-go_core/kernels/csrc: the fused Adam step and the loss terms ``go_core.losses`` reaches through
+go_core/kernels/csrc: the fused Adam step and the loss terms ``go_core.coarse.losses`` reaches through
 ``torch.ops.go_ssim``) is compiled with the system C++ compiler through ``torch.utils.cpp_extension.load``
 (the pinned PyPI ninja). The build directory is keyed by a hash of the sources and their
 folder, flags, torch/python/ninja versions and the CPU's instruction-set flags (the code is built with

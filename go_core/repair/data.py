@@ -1,7 +1,7 @@
 """Reading what the repair steps need from upstream artifacts, and rendering helpers.
 
 * training views: the ``scene`` artifact's training views with the ``mask`` step's masks
-  (``masks.npz``; falls back to the scene's own masks), as ``go_core.training.TrainView``;
+  (``masks.npz``; falls back to the scene's own masks), as ``go_core.coarse.loop.TrainView``;
 * images: float32 torch [H, W, 3] in [0, 1]; composited on white for the repair model (paper: white bg).
 """
 
@@ -27,7 +27,7 @@ def training_views(
     coarse.refine_poses),
     so a stage that renders the coarse model at the training views sees it where it was fitted."""
     from go_core import artifacts as art
-    from go_core.training import TrainView
+    from go_core.coarse.loop import TrainView
 
     scene = art.read_scene(scene_dir)
     if mask_dir is not None:

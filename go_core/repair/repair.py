@@ -1,7 +1,7 @@
 """Gaussian repair (paper Sec. 3.5): distill the repair model into the Gaussians along distance-aware paths.
 
-Built on ``go_core.training.optimize`` (the reference views keep their coarse-stage loss each iteration) plus
-an ``extra_loss`` hook that, during the first ``repair_iterations`` (2800 of 4000), adds for one cached
+Built on ``go_core.coarse.loop.optimize`` (the reference views keep their coarse-stage loss each iteration)
+plus an ``extra_loss`` hook that, during the first ``repair_iterations`` (2800 of 4000), adds for one cached
 repaired view
 
     decay(step) · w(t) · λ(π) · (L1 + L2 + LPIPS)(render(π), repaired(π))
@@ -187,7 +187,7 @@ def repair_gaussians(
 
     The summary depends only on the inputs (identical after a resume); the run facts (resume point, refreshes
     computed in this process, L_rep log) describe this particular process."""
-    from go_core.training import CheckpointSpec, optimize
+    from go_core.coarse.loop import CheckpointSpec, optimize
 
     arcs = RepairArcs.from_cameras([v.camera for v in views], keep=settings.keep)
     sh = coarse.sh_degree

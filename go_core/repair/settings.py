@@ -7,8 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Literal
 
+from go_core.coarse.settings import Backend, CoarseConfig
 from go_core.config import setting
-from go_core.train_settings import Backend, CoarseConfig
 
 
 @dataclass

@@ -96,7 +96,7 @@ def scene_input_files(path: str | Path) -> list[Path]:
     return files
 
 
-def read_scene(path: str | Path, views: int, max_size: int, problems: Problems) -> Scene | None:
+def read_scene_folder(path: str | Path, views: int, max_size: int, problems: Problems) -> Scene | None:
     """Read a scene, reporting every problem to ``problems``; None when nothing usable was read."""
     root = Path(path)
     if not root.is_dir():
@@ -148,7 +148,7 @@ def load_scene(path: str | Path, views: int = 0, max_size: int = 0) -> Scene:
     Raises ``SceneError`` (one line naming the file and the problem) at the first problem found; use
     ``go_core.scene.validate.validate_scene`` to list every problem at once."""
     problems = Problems(strict=True)
-    scene = read_scene(path, views, max_size, problems)
+    scene = read_scene_folder(path, views, max_size, problems)
     if scene is None:  # pragma: no cover - strict mode raises before this
         raise SceneError("could not read the scene", path=path)
     return scene

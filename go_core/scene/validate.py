@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from go_core.scene.common import Problems
-from go_core.scene.loader import read_scene
+from go_core.scene.loader import read_scene_folder
 from go_core.scene.types import Scene, View
 
 
@@ -80,5 +80,5 @@ class ValidationReport:
 def validate_scene(path: str | Path, views: int = 0, max_size: int = 0) -> ValidationReport:
     """Read the scene at ``path`` collecting every problem instead of stopping at the first."""
     problems = Problems(strict=False)
-    scene = read_scene(path, views, max_size, problems)
+    scene = read_scene_folder(path, views, max_size, problems)
     return ValidationReport(Path(path), problems.lines, scene)

@@ -30,6 +30,7 @@ def dag_lines(pipeline) -> list[str]:
         lines.append(
             f"{i:>2}. {name:<{width}}  <- {', '.join(ups) or '(nothing)'}"
             f"   => {', '.join(spec.outputs)}"
+            + (f" (sometimes {', '.join(spec.optional_outputs)})" if spec.optional_outputs else "")
             + (f"   -> {', '.join(downstream[name])}" if downstream[name] else "")
         )
     return lines
@@ -57,6 +58,7 @@ def main(args: argparse.Namespace) -> int:
                     n: {
                         "inputs": dict(s.inputs),
                         "outputs": list(s.outputs),
+                        "optional_outputs": list(s.optional_outputs),
                         "downstream": [d for d in pipeline.steps if n in pipeline.steps[d].upstream],
                     }
                     for n, s in pipeline.steps.items()

@@ -99,9 +99,9 @@ def estimate(
     folder: Path, out: Path, threads: int, allow_unregistered: bool, report: Path | None, matcher: str
 ) -> int:
     """SfM, then ``verify_poses`` on the result: the transforms are written only when every check passes."""
+    from go_core.errors import PoseCheckError
     from go_core.io.atomic import atomic_write_json
-    from go_core.pose_estimate import estimate_poses
-    from go_core.posecheck import PoseCheckError
+    from go_core.poses.estimate import estimate_poses
 
     views = _image_views(folder)
     try:
@@ -161,7 +161,7 @@ def main(args: argparse.Namespace) -> int:
     if args.estimate is not None:
         matcher = args.matcher
         return estimate(args.scene, args.estimate, args.threads, args.allow_unregistered, args.json, matcher)
-    from go_core.posecheck import check_poses
+    from go_core.poses.check import check_poses
     from go_core.scene import load_scene
 
     scene = load_scene(args.scene)

@@ -66,8 +66,7 @@ def main(args: argparse.Namespace) -> int:
         if out is None:
             print(text)
             return 0
-        from go_core.io.atomic import atomic_write_text
-        from go_pipeline.outputs import readable
+        from go_core.io.atomic import atomic_write_text, readable
 
         path = readable(atomic_write_text(out if as_file else out / "report.json", text + "\n"))
         print(path)
@@ -78,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
     path = (write_markdown if fmt == "md" else write_html)(report, folder)
     if as_file and path != out:
         path = path.replace(out)
-    from go_pipeline.outputs import readable
+    from go_core.io.atomic import readable
 
     print(readable(path))
     return 0

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from go_core.camera import Camera
-from go_core.epipolar import epipolar_distances
 from go_core.errors import EmptyHullError
+from go_core.poses.epipolar import epipolar_distances
 
 COVERAGE_PIXELS = 300  # mask pixels drawn per view for each coverage of a turned camera (seeded)
 COVERAGE_SAMPLES = 128  # samples per ray
@@ -56,9 +56,9 @@ def turn_to_matches(
 
 
 def lowest_coverage(cameras: list[Camera], masks: list[np.ndarray]) -> float:
-    """The lowest mask coverage of any view (``go_core.pose_verify.mask_coverage``); 0 when the masks'
+    """The lowest mask coverage of any view (``go_core.poses.verify.mask_coverage``); 0 when the masks'
     frusta have no common point."""
-    from go_core.pose_verify import mask_coverage
+    from go_core.poses.verify import mask_coverage
 
     try:
         cov = mask_coverage(cameras, masks, max_pixels=COVERAGE_PIXELS, samples_per_ray=COVERAGE_SAMPLES)

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import torch
 
+from go_core.coarse.settings import RegularizerConfig
 from go_core.gaussians import Gaussians
-from go_core.train_settings import RegularizerConfig
 
 __all__ = ["RegularizerConfig", "drop_compensation", "drop_rate", "regularization_loss"]
 

@@ -1,6 +1,6 @@
 """A reusable 3DGS optimisation loop (the coarse stage; the leave-one-out and repair stages build on it).
 
-    from go_core.training import CoarseConfig, TrainView, optimize
+    from go_core.coarse.loop import CoarseConfig, TrainView, optimize
     views = [TrainView.from_arrays(v.camera, v.image, mask) for v, mask in zip(scene.train, masks)]
     gaussians, stats = optimize(init_gaussians, views, CoarseConfig(iterations=10_000),
                                 generator=torch_generator(seed),
@@ -30,21 +30,20 @@ import gc
 import hashlib
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
 from go_core.camera import Camera
-from go_core.densify import DensifyStrategy, NoDensify, Strategy
-from go_core.floaters import floater_mask
+from go_core.coarse.densify import DensifyStrategy, NoDensify, Strategy
+from go_core.coarse.floaters import floater_mask
+from go_core.coarse.losses import depth_loss, photometric_terms
+from go_core.coarse.optim import GaussianOptimizer
+from go_core.coarse.regularizers import drop_compensation, drop_rate, regularization_loss
+from go_core.coarse.settings import CoarseConfig
 from go_core.gaussians import Gaussians
-from go_core.losses import depth_loss, photometric_terms
-from go_core.optim import GaussianOptimizer
-from go_core.regularizers import drop_compensation, drop_rate, regularization_loss
-from go_core.train_settings import CoarseConfig
 
 CHECKPOINT_FORMAT = 1
 
@@ -243,10 +242,6 @@ def _load_newest(spec: CheckpointSpec, fingerprint: str) -> dict | None:
     return None
 
 
-def _to_dict(obj: Any) -> Any:
-    return asdict(obj) if is_dataclass(obj) else obj
-
-
 def optimize(
     gaussians: Gaussians,
     views: list[TrainView],
@@ -280,7 +275,7 @@ def optimize(
     stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
     poses = None
     if config.refine_poses:
-        from go_core.pose_refine import JointPoses
+        from go_core.poses.refine import JointPoses
 
         cams, lrs = [v.camera for v in views], (config.pose_lr_rotation, config.pose_lr_translation)
         poses = JointPoses(cams, *lrs, config.pose_refine_from, config.iterations)

@@ -1,5 +1,5 @@
-"""Poses for views that have none: incremental SfM (go_core.posecheck.reconstruct), then every check of
-go_core.pose_verify on the result. One call shared by `go-pipeline poses --estimate` and the ``scene``
+"""Poses for views that have none: incremental SfM (go_core.poses.sfm.reconstruct), then every check of
+go_core.poses.verify on the result. One call shared by `go-pipeline poses --estimate` and the ``scene``
 step's ``poses: estimate`` (the COLMAP-free profile): a result that may be wrong is refused, with the views
 and the reasons, never handed on."""
 
@@ -7,9 +7,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from go_core import posecheck
-from go_core.pose_verify import PoseVerdict, verify_poses
-from go_core.posecheck import DEFAULT_MATCHER, SfmResult
+from go_core.poses import sfm as pose_sfm
+from go_core.poses.matching import DEFAULT_MATCHER
+from go_core.poses.sfm import SfmResult
+from go_core.poses.verify import PoseVerdict, verify_poses
 
 
 @dataclass
@@ -35,7 +36,7 @@ def estimate_poses(
     """SfM on ``views`` (objects with ``name``, ``image`` and optional ``mask``) and the verification of its
     cameras. Raises ``PoseCheckError`` when nothing can be reconstructed; views that could not be registered
     are a problem unless ``allow_unregistered``."""
-    sfm = posecheck.reconstruct(views, num_threads=num_threads, matcher=matcher, seed=seed)
+    sfm = pose_sfm.reconstruct(views, num_threads=num_threads, matcher=matcher, seed=seed)
     registered = [v for v in views if v.name in sfm.cameras]
     missing = [v.name for v in views if v.name not in sfm.cameras]
     masks = [v.mask for v in registered] if all(v.mask is not None for v in registered) else None

@@ -55,17 +55,16 @@ def bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
-def project(cam: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``Camera.project`` written per column (numpy's [N,3]@[3,3] matmul is ~10x slower for large N)."""
-    R, t = cam.world_to_cam[:3, :3], cam.world_to_cam[:3, 3]
-    x, y, z = points[:, 0], points[:, 1], points[:, 2]
-    xc = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
-    yc = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
-    zc = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
-    K = cam.K
+def ray_box(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Entry and exit distances [N] of rays (``origin`` [3] or [N,3], unit ``dirs`` [N,3]) through the box
+    ``lo``..``hi`` (slab method); entry is clamped at 0 and exit < entry where a ray misses."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        a, b = xc / zc, yc / zc
-    return np.stack([K[0, 0] * a + K[0, 1] * b + K[0, 2], K[1, 1] * b + K[1, 2]], axis=1), zc
+        inv = 1.0 / dirs
+        t0 = (lo - origin) * inv
+        t1 = (hi - origin) * inv
+    tmin = np.nan_to_num(np.minimum(t0, t1), nan=-np.inf).max(1)
+    tmax = np.nan_to_num(np.maximum(t0, t1), nan=np.inf).min(1)
+    return np.maximum(tmin, 0.0), tmax
 
 
 def inside_masks(
@@ -74,7 +73,7 @@ def inside_masks(
     """Boolean [V,N]: point n projects in front of camera v, inside its image, onto mask value > threshold."""
     out = np.zeros((len(cameras), len(points)), dtype=bool)
     for i, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
-        uv, z = project(cam, points)
+        uv, z = cam.project(points)
         ok = (z > 0) & np.isfinite(uv).all(1)
         ok &= (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
         idx = np.nonzero(ok)[0]
@@ -230,7 +229,7 @@ def hull_colors(
     acc = np.zeros((len(points), 3), np.float64)
     acc_all = np.zeros((len(points), 3), np.float64)
     for i, (cam, img) in enumerate(zip(cameras, images, strict=True)):
-        uv, _ = project(cam, points)
+        uv, _ = cam.project(points)
         uv = np.nan_to_num(uv, nan=0.0, posinf=0.0, neginf=0.0)
         c = bilinear(np.asarray(img, np.float32), uv)
         acc += c * seen[i, :, None]

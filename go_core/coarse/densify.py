@@ -17,9 +17,9 @@ from abc import ABC, abstractmethod
 
 import torch
 
-from go_core.optim import GaussianOptimizer
+from go_core.coarse.optim import GaussianOptimizer
+from go_core.coarse.settings import DensifyConfig
 from go_core.render.projection import quat_to_rotmat
-from go_core.train_settings import DensifyConfig
 
 __all__ = ["DensifyConfig", "DensifyStrategy", "NoDensify", "Strategy", "quat_to_rotmat"]
 

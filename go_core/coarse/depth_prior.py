@@ -1,8 +1,8 @@
 """Monocular depth prior from a LOCAL transformers checkpoint folder (DPT, Depth-Anything, ...).
 
 These models predict relative inverse depth (disparity: larger = closer) up to an unknown shift and scale,
-which is exactly what the shift/scale-invariant depth loss (go_core.losses.depth_loss) needs. Nothing is
-downloaded: ``from_pretrained`` is called with ``local_files_only=True``.
+which is exactly what the shift/scale-invariant depth loss (go_core.coarse.losses.depth_loss) needs.
+Nothing is downloaded: ``from_pretrained`` is called with ``local_files_only=True``.
 """
 
 from __future__ import annotations

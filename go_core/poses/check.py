@@ -12,8 +12,7 @@
 4. Per image: median (robust) and mean reprojection error over its observations; an image whose median
    error is above ``threshold_px`` (scaled to the image size) is flagged.
 
-``reconstruct`` runs pycolmap incremental SfM for scenes without poses (go_core.pose_estimate verifies its
-result before anything uses it).
+Steps 1 and 2-3 are go_core.poses.matching and go_core.poses.tracks; this module judges the views.
 """
 
 from __future__ import annotations
@@ -24,20 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
-from go_core.camera import Camera
-from go_core.epipolar import epipolar_distances
-from go_core.errors import EmptyHullError, GoError
-from go_core.io.images import to_uint8
-from go_core.match_silhouettes import PairTurns, pair_turns, refutation_floor
-from go_core.pose_verify import MIN_COVERAGE, optical_axis_angles
+from go_core.errors import EmptyHullError, PoseCheckError
+from go_core.poses.epipolar import epipolar_distances
+from go_core.poses.matching import (
+    DEFAULT_MATCHER,
+    LEARNED_MIN_THRESHOLD_PX,
+    extract_and_match,
+)
+from go_core.poses.silhouettes import PairTurns, pair_turns, refutation_floor
+from go_core.poses.tracks import build_tracks, leave_one_out_errors
+from go_core.poses.verify import MIN_COVERAGE, optical_axis_angles
 
 WIDE_BASELINE_DEG = 60.0  # disagreeing pairs wider than this are no evidence (mostly repeated texture)
 SELF_MATCH_SHARE = 0.5  # more disagreeing pairs than this share, with no single view to blame: no evidence
-PEAK_THRESHOLD = 0.002  # SIFT DoG peak threshold: below COLMAP's 0.0067 for the smooth objects we scan
-
-
-class PoseCheckError(GoError):
-    """The pose check could not run (too few views, no matches, ...)."""
 
 
 @dataclass
@@ -79,342 +77,6 @@ class PoseCheckReport:
         return d
 
 
-def _write_inputs(views, root: Path, dilate_px: int, use_masks: bool = True) -> tuple[list[str], bool]:
-    """PNG images (and masks for pycolmap's reader: features only where the mask is > 0) into ``root``."""
-    import cv2
-
-    img_dir, mask_dir = root / "images", root / "masks"
-    img_dir.mkdir(parents=True)
-    mask_dir.mkdir()
-    names, have_masks = [], use_masks and all(v.mask is not None for v in views)
-    for i, v in enumerate(views):
-        name = f"{i:04d}.png"
-        rgb = to_uint8(v.image)
-        cv2.imwrite(str(img_dir / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        if have_masks:
-            m = (np.asarray(v.mask) > 0.5).astype(np.uint8) * 255
-            if dilate_px > 0:
-                m = cv2.dilate(m, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
-            cv2.imwrite(str(mask_dir / f"{name}.png"), m)  # COLMAP: mask of a.png is a.png.png
-        names.append(name)
-    return names, have_masks
-
-
-def _quiet(pycolmap) -> None:
-    """COLMAP logs every stage at INFO on stderr; keep warnings and errors only."""
-    try:
-        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
-    except (AttributeError, TypeError, ValueError):
-        pass
-
-
-MATCHERS = ("sift", "disk")  # disk: DISK features + LightGlue (go_core.features)
-# with whole-pixel DISK keypoints a correct pair's median epipolar distance exceeded the size-scaled threshold
-# (1.08 px against 0.94 px at 160 px on the example scene); the floor stays with the sub-pixel peaks
-LEARNED_MIN_THRESHOLD_PX = 1.5
-DEFAULT_MATCHER = "sift"
-# LightGlue's match confidence floor: its own default for the check, whose verdicts rest on every pair with
-# the given poses; 0.9 for estimation, where a wrong pair becomes a wrong camera. Wide-baseline pairs of a
-# shiny or symmetric object get tens of wrong matches (median confidence 0.04 against 0.47 for right ones)
-# that share the true epipolar lines' direction (turntable: near-horizontal), so COLMAP's two-view
-# verification passes them: real/ethiopian_head (12 views) had 53 of 66 verified pairs wrong at 0.1, 0 of
-# 10 at 0.9 (docs/evaluation.md)
-CHECK_MIN_CONFIDENCE = 0.1
-ESTIMATE_MIN_CONFIDENCE = 0.9
-
-
-def _verification(seed: int):
-    """COLMAP's two-view geometry options with RANSAC drawing from ``seed`` (an option, never the global
-    PRNG: pycolmap.set_random_seed would reseed the whole process)."""
-    import pycolmap
-
-    options = pycolmap.TwoViewGeometryOptions()
-    options.ransac.random_seed = int(seed)
-    return options
-
-
-def _sift_into_database(
-    views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model, seed
-):
-    """pycolmap SIFT extraction (inside the masks) and exhaustive matching into ``work/database.db``."""
-    import pycolmap
-
-    db_path = work / "database.db"
-    reader = pycolmap.ImageReaderOptions()
-    if have_masks:
-        reader.mask_path = str(work / "masks")
-    if camera_model:
-        reader.camera_model = camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = num_threads
-    extraction.use_gpu = False
-    extraction.sift.max_num_features = max_features
-    extraction.sift.peak_threshold = peak_threshold
-    pycolmap.extract_features(
-        db_path,
-        work / "images",
-        image_names=names,
-        camera_mode=pycolmap.CameraMode.SINGLE if camera_model else pycolmap.CameraMode.PER_IMAGE,
-        reader_options=reader,
-        extraction_options=extraction,
-        device=pycolmap.Device.cpu,
-    )
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = num_threads
-    matching.use_gpu = False
-    pycolmap.match_exhaustive(
-        db_path,
-        matching_options=matching,
-        verification_options=_verification(seed),
-        device=pycolmap.Device.cpu,
-    )
-
-
-def disk_features(disk, views, max_features: int, dilate_px: int, have_masks: bool = True) -> list:
-    """Per view: DISK features (``go_core.features.disk.detect``) inside its mask dilated by ``dilate_px``
-    (the whole image without masks), and the image size [w, h] LightGlue normalises keypoints by."""
-    import cv2
-    import torch
-
-    from go_core.features.disk import detect
-
-    feats = []
-    for v in views:
-        img = torch.from_numpy(np.ascontiguousarray(np.clip(v.image, 0, 1).transpose(2, 0, 1))).float()
-        mask = None
-        if have_masks:
-            m = (np.asarray(v.mask) > 0.5).astype(np.uint8)
-            if dilate_px > 0:
-                m = cv2.dilate(m, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
-            mask = torch.from_numpy(m.astype(bool))
-        f = detect(disk, img, max_keypoints=max_features, mask=mask)
-        feats.append((f, torch.tensor([img.shape[2], img.shape[1]], dtype=torch.float32)))
-    return feats
-
-
-def _learned_into_database(
-    views,
-    work,
-    names,
-    have_masks,
-    max_features,
-    num_threads,
-    dilate_px,
-    camera_model,
-    seed,
-    min_confidence,
-    pair_filter=None,
-):
-    """DISK keypoints (inside the dilated masks) and LightGlue matches of every pair, written into
-    ``work/database.db``; then pycolmap's two-view geometric verification, as for SIFT."""
-    import pycolmap
-    import torch
-
-    from go_core.features.weights import load_disk, load_lightglue
-
-    db_path = work / "database.db"
-    pycolmap.Database.open(db_path).close()  # import_images needs the file
-    reader = pycolmap.ImageReaderOptions()
-    if camera_model:
-        reader.camera_model = camera_model
-    pycolmap.import_images(
-        db_path,
-        work / "images",
-        camera_mode=pycolmap.CameraMode.SINGLE if camera_model else pycolmap.CameraMode.PER_IMAGE,
-        image_names=names,
-        options=reader,
-    )
-    disk, glue = load_disk(), load_lightglue()
-    with torch.no_grad(), _torch_threads(num_threads):
-        feats = disk_features(disk, views, max_features, dilate_px, have_masks)
-        db = pycolmap.Database.open(db_path)
-        try:
-            ids = {img.name: img.image_id for img in db.read_all_images()}
-            for name, (f, _) in zip(names, feats, strict=True):
-                # sub-pixel peaks for the geometry (LightGlue matched the whole pixels); COLMAP: centres +0.5
-                db.write_keypoints(ids[name], (f.xy_subpixel.numpy() + 0.5).astype(np.float32))
-            pairs = []
-            for i in range(len(views)):
-                for j in range(i + 1, len(views)):
-                    if pair_filter is not None and not pair_filter(i, j):
-                        continue
-                    (fi, si), (fj, sj) = feats[i], feats[j]
-                    m, confidence = glue(fi.xy, fi.descriptors, si, fj.xy, fj.descriptors, sj)
-                    m = m[confidence > min_confidence]
-                    if len(m):
-                        db.write_matches(ids[names[i]], ids[names[j]], m.numpy().astype(np.uint32))
-                        pairs.append(f"{names[i]} {names[j]}")
-        finally:
-            db.close()
-    pairs_path = work / "pairs.txt"
-    pairs_path.write_text("\n".join(pairs) + "\n")
-    if pairs:
-        pycolmap.verify_matches(db_path, pairs_path, options=_verification(seed))
-
-
-class _torch_threads:
-    """Run torch with ``n`` intra-op threads inside the block (the pose check shares the machine)."""
-
-    def __init__(self, n: int) -> None:
-        self.n = max(1, int(n))
-
-    def __enter__(self):
-        import torch
-
-        self.old = torch.get_num_threads()
-        torch.set_num_threads(self.n)
-
-    def __exit__(self, *exc) -> None:
-        import torch
-
-        torch.set_num_threads(self.old)
-
-
-def extract_and_match(
-    views,
-    work: Path,
-    max_features: int = 4096,
-    num_threads: int = 2,
-    dilate_px: int = 3,
-    peak_threshold: float = PEAK_THRESHOLD,
-    use_masks: bool = True,
-    camera_model: str | None = None,
-    matcher: str = DEFAULT_MATCHER,
-    pair_filter=None,
-    seed: int = 0,
-    min_confidence: float = CHECK_MIN_CONFIDENCE,
-) -> tuple[list[np.ndarray], dict[tuple[int, int], np.ndarray]]:
-    """Features + exhaustive matching + geometric verification with pycolmap.
-
-    ``matcher``: ``sift`` (COLMAP's SIFT and its matcher) or ``disk`` (DISK + LightGlue, learned; weights
-    from ``go-pipeline weights fetch``). Both keep features inside the (dilated) masks and verify every
-    matched pair with COLMAP's two-view geometry. Returns per-view keypoint xy [N,2] (COLMAP pixel
-    convention = ours: pixel centres at +0.5) and {(i, j): inlier match index pairs [M,2]} for i < j.
-    ``pair_filter(i, j)``: the pairs the learned matcher runs on (default all; SIFT always matches all).
-    ``seed``: the RANSAC seed of the verification. ``min_confidence``: LightGlue matches at or below it are
-    dropped (``disk`` only; CHECK_MIN_CONFIDENCE / ESTIMATE_MIN_CONFIDENCE).
-    """
-    import pycolmap
-
-    if matcher not in MATCHERS:
-        raise PoseCheckError(f"unknown matcher {matcher!r}; choose one of {', '.join(MATCHERS)}")
-    names, have_masks = _write_inputs(views, work, dilate_px, use_masks)
-    _quiet(pycolmap)
-    if matcher == "sift":
-        _sift_into_database(
-            views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model, seed
-        )
-    else:
-        _learned_into_database(
-            views,
-            work,
-            names,
-            have_masks,
-            min(max_features, 2048),
-            num_threads,
-            dilate_px,
-            camera_model,
-            seed,
-            min_confidence,
-            pair_filter,
-        )
-    db = pycolmap.Database.open(work / "database.db")
-    try:
-        id_to_index = {img.image_id: names.index(img.name) for img in db.read_all_images()}
-        keypoints = [np.zeros((0, 2))] * len(views)
-        for image_id, idx in id_to_index.items():
-            keypoints[idx] = np.asarray(db.read_keypoints(image_id))[:, :2].astype(np.float64)
-        pair_ids, geometries = db.read_two_view_geometries()
-        matches: dict[tuple[int, int], np.ndarray] = {}
-        for pair_id, geom in zip(pair_ids, geometries, strict=True):
-            inl = np.asarray(geom.inlier_matches)
-            if inl.size == 0:
-                continue
-            id1, id2 = pycolmap.pair_id_to_image_pair(pair_id)
-            i, j = id_to_index[id1], id_to_index[id2]
-            if i > j:
-                i, j, inl = j, i, inl[:, ::-1]
-            matches[(i, j)] = inl.astype(np.int64)
-    finally:
-        db.close()
-    return keypoints, matches
-
-
-def build_tracks(num_keypoints: list[int], matches: dict[tuple[int, int], np.ndarray]) -> list[np.ndarray]:
-    """Union-find tracks: each an array [[view, keypoint], ...] with every view at most once, >= 2 views."""
-    offsets = np.concatenate([[0], np.cumsum(num_keypoints)])
-    parent = np.arange(int(offsets[-1]))
-
-    def find(x: int) -> int:
-        root = x
-        while parent[root] != root:
-            root = parent[root]
-        while parent[x] != root:
-            parent[x], x = root, parent[x]
-        return root
-
-    for (i, j), m in matches.items():
-        for a, b in m:
-            ra, rb = find(offsets[i] + a), find(offsets[j] + b)
-            if ra != rb:
-                parent[rb] = ra
-    groups: dict[int, list[int]] = {}
-    used = set()
-    for (i, j), m in matches.items():
-        used.update((offsets[i] + m[:, 0]).tolist())
-        used.update((offsets[j] + m[:, 1]).tolist())
-    for node in used:
-        groups.setdefault(find(node), []).append(node)
-    tracks = []
-    for nodes in groups.values():
-        view_of = np.searchsorted(offsets, nodes, side="right") - 1
-        if len(set(view_of.tolist())) != len(nodes) or len(nodes) < 2:
-            continue  # inconsistent track (one image twice) or trivial
-        kp = np.asarray(nodes) - offsets[view_of]
-        tracks.append(np.stack([view_of, kp], axis=1))
-    return tracks
-
-
-def triangulate_dlt(projections: np.ndarray, points2d: np.ndarray) -> np.ndarray:
-    """Linear (DLT) triangulation of one point from P [K,3,4] and pixel coords [K,2]."""
-    rows = []
-    for P, (u, v) in zip(projections, points2d, strict=True):
-        rows.append(u * P[2] - P[0])
-        rows.append(v * P[2] - P[1])
-    A = np.asarray(rows)
-    A /= np.linalg.norm(A, axis=1, keepdims=True) + 1e-12
-    _, _, vt = np.linalg.svd(A)
-    X = vt[-1]
-    return X[:3] / X[3] if abs(X[3]) > 1e-12 else np.full(3, np.nan)
-
-
-def leave_one_out_errors(
-    cameras: list[Camera], keypoints: list[np.ndarray], tracks: list[np.ndarray], min_views: int = 3
-) -> list[list[float]]:
-    """Per view, the reprojection errors (px) of its observations against points triangulated from the
-    other views of each track (tracks with >= ``min_views`` views)."""
-    P = np.stack([c.K @ c.world_to_cam[:3] for c in cameras])
-    errors: list[list[float]] = [[] for _ in cameras]
-    for track in tracks:
-        if len(track) < min_views:
-            continue
-        vids, kps = track[:, 0], track[:, 1]
-        xy = np.stack([keypoints[v][k] for v, k in zip(vids, kps, strict=True)])
-        for t in range(len(track)):
-            others = np.arange(len(track)) != t
-            X = triangulate_dlt(P[vids[others]], xy[others])
-            if not np.all(np.isfinite(X)):
-                continue
-            cam = cameras[vids[t]]
-            uv, z = cam.project(X[None])
-            zo = np.array([cameras[v].project(X[None])[1][0] for v in vids[others]])
-            if z[0] <= 0 or np.any(zo <= 0):
-                errors[vids[t]].append(float("inf"))  # behind a camera: certainly inconsistent
-                continue
-            errors[vids[t]].append(float(np.linalg.norm(uv[0] - xy[t])))
-    return errors
-
-
 def _blame_inconsistent_pairs(
     n: int, pair_err: dict, consistent: dict, min_consistent_pairs: int
 ) -> dict[int, bool]:
@@ -442,9 +104,9 @@ def _blame_inconsistent_pairs(
 
 
 def _mask_coverages(views, max_views: int) -> tuple[list[float] | None, str]:
-    """Silhouette consistency (``go_core.pose_verify.mask_coverage``): evidence that needs no texture.
+    """Silhouette consistency (``go_core.poses.verify.mask_coverage``): evidence that needs no texture.
     Per view the coverage (None when not checked) and the note or problem ("" when there is none)."""
-    from go_core.pose_verify import mask_coverage
+    from go_core.poses.verify import mask_coverage
 
     if any(v.mask is None for v in views):
         return None, "masks not checked: some views have no mask"
@@ -504,7 +166,7 @@ def check_poses(
     no evidence against either view: across such baselines almost every verified pair of the dev scenes
     with correct poses that disagrees is repeated texture (docs/evaluation.md); one that agrees still counts.
     With masks, a disagreeing pair counts only if turning one of its views about its centre to fit the
-    matches leaves the masks agreeing at least as well as the given poses (``go_core.match_silhouettes``):
+    matches leaves the masks agreeing at least as well as the given poses (``go_core.poses.silhouettes``):
     the matches of a symmetric object matched to itself ask for turns the silhouettes refute, a turned
     camera's ask for its error back.
     Tracks from consistent pairs then give the leave-one-out reprojection error, which also catches
@@ -699,75 +361,3 @@ def _overrule_self_matches(report: PoseCheckReport, agrees: dict[tuple[int, int]
     report.flagged = []
     report.unverified = [r.name for r in report.images]
     report.notes.append(reason)
-
-
-@dataclass
-class SfmResult:
-    """Incremental SfM output: cameras of the registered views in COLMAP's arbitrary frame and scale."""
-
-    cameras: dict  # {view name: Camera}
-    mean_reprojection_px: float
-    observations: dict  # {view name: 3D points it observes}
-    num_points: int
-    num_verified_pairs: int
-
-
-def reconstruct(
-    views,
-    workdir: Path | None = None,
-    num_threads: int = 2,
-    max_features: int = 4096,
-    seed: int = 0,
-    matcher: str = DEFAULT_MATCHER,
-) -> SfmResult:
-    """Incremental SfM with pycolmap for images without poses (``views``: objects with ``name``, ``image``
-    and optional ``mask``). One shared PINHOLE camera is estimated. Keeps the largest reconstruction.
-    The learned matcher keeps only matches above ESTIMATE_MIN_CONFIDENCE.
-    COLMAP's RANSAC and mapper draw from ``seed``; results repeat exactly only with ``num_threads=1``.
-    Raises ``PoseCheckError`` when nothing can be reconstructed, saying why."""
-    import pycolmap
-
-    with tempfile.TemporaryDirectory(prefix="go-sfm-", dir=workdir) as tmp:
-        work = Path(tmp)
-        _, matches = extract_and_match(
-            views,
-            work,
-            max_features,
-            num_threads,
-            camera_model="PINHOLE",
-            matcher=matcher,
-            seed=seed,
-            min_confidence=ESTIMATE_MIN_CONFIDENCE,
-        )
-        out = work / "sparse"
-        out.mkdir()
-        options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = num_threads
-        options.random_seed = seed  # the mapper's own PRNG (options, not pycolmap.set_random_seed)
-        recs = pycolmap.incremental_mapping(work / "database.db", work / "images", out, options=options)
-    if not recs:
-        masked = all(getattr(v, "mask", None) is not None for v in views)
-        raise PoseCheckError(
-            f"no reconstruction: {len(matches)} image pair(s) of {len(views)} images have verified feature "
-            f"matches{' inside the masks' if masked else ''}, too few to start one. The views are too far "
-            "apart or the object has too little texture: add photos between the views"
-        )
-    rec = max(recs.values(), key=lambda r: r.num_reg_images())
-    cameras, observations = {}, {}
-    for image in rec.images.values():
-        if not image.has_pose:
-            continue
-        view = views[int(Path(image.name).stem)]
-        cam = image.camera
-        fx, fy, cx, cy = (float(x) for x in cam.params[:4])
-        w2c = np.eye(4)
-        w2c[:3] = image.cam_from_world().matrix()
-        cameras[view.name] = Camera.from_intrinsics(view.name, cam.width, cam.height, fx, fy, cx, cy, w2c)
-        observations[view.name] = int(image.num_points3D)
-    return SfmResult(
-        cameras,
-        float(rec.compute_mean_reprojection_error()),
-        observations,
-        int(rec.num_points3D()),
-        len(matches),
-    )

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from go_core.train_settings import SCHEDULES, FloaterConfig
+from go_core.coarse.settings import SCHEDULES, FloaterConfig
 
 __all__ = ["SCHEDULES", "FloaterConfig", "floater_mask", "knn_mean_distance"]
 

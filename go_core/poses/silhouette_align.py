@@ -45,7 +45,8 @@ import torch
 import torch.nn.functional as F
 
 from go_core.camera import Camera
-from go_core.pose_refine import PoseCorrection, mean_camera_distance
+from go_core.coarse.hull import ray_box
+from go_core.poses.refine import PoseCorrection, mean_camera_distance
 
 PRIOR_WEIGHT = 1e-3  # the cost of a move by one sigma (centre or turn), in shares of a mask left uncovered
 
@@ -116,15 +117,6 @@ def _rays(viewmat: torch.Tensor, K: np.ndarray, uv: torch.Tensor) -> tuple[torch
     return -(R.T @ t), d / d.norm(dim=1, keepdim=True)
 
 
-def _box_range(origin: torch.Tensor, dirs: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor):
-    """Entry/exit distances [R] of the rays in the box (slab method); exit < entry where missed."""
-    inv = 1.0 / torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
-    t0, t1 = (lo - origin) * inv, (hi - origin) * inv
-    near = torch.minimum(t0, t1).amax(1).clamp_min(0.0)
-    far = torch.maximum(t0, t1).amin(1)
-    return near, far
-
-
 def _sample(mask: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor, cam: Camera, x: torch.Tensor):
     """Mask values at world points ``x`` [N,3] seen by one camera (0 behind it or outside the image)."""
     pc = x @ viewmat[:3, :3].T + viewmat[:3, 3]
@@ -150,7 +142,9 @@ def coverage(
         uv, weight = level.pixels[j]
         origin, dirs = _rays(viewmats[j], cam.K, uv.to(viewmats.dtype))
         with torch.no_grad():
-            near, far = _box_range(origin, dirs, *box)
+            near, far = (
+                torch.from_numpy(d) for d in ray_box(*(v.detach().numpy() for v in (origin, dirs, *box)))
+            )
             hit = far > near
             t = near[:, None] + frac[None] * (far - near).clamp_min(0.0)[:, None]  # [R,S]
         x = origin + t[..., None] * dirs[:, None, :]  # [R,S,3]
@@ -172,7 +166,7 @@ def align_cameras(
     settings: SilhouetteAlignSettings = SilhouetteAlignSettings(),
 ) -> SilhouetteAlignResult:
     """Turn (and with ``settings.centre_sigma`` > 0 move) every camera so the masks agree (module docstring).
-    ``box`` (lo, hi) bounds the object (e.g. ``go_core.hull.hull_bounds`` with every view but one)."""
+    ``box`` (lo, hi) bounds the object (e.g. ``go_core.coarse.hull.hull_bounds`` with every view but one)."""
     if len(cameras) < 3:
         raise ValueError(f"silhouette coherence needs at least 3 views, got {len(cameras)}")
     dtype = torch.float64

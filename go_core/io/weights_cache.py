@@ -13,3 +13,9 @@ def cache_dir() -> Path:
     """``$GO_PIPELINE_CACHE`` or ``~/.cache/go-pipeline``."""
     env = os.environ.get("GO_PIPELINE_CACHE")
     return Path(env).expanduser() if env else Path.home() / ".cache" / "go-pipeline"
+
+
+def lpips_weights_file(net: str, root: Path | None = None) -> Path:
+    """Where ``go-pipeline weights fetch`` puts the LPIPS weights of ``net`` (``alex`` / ``vgg``): read by
+    go_core.metrics.lpips_weights and hashed into cache keys by the runner without importing torch."""
+    return (root or cache_dir()) / "lpips" / f"{net}.safetensors"

@@ -23,8 +23,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from go_core.camera import Camera
+from go_core.coarse.hull import hull_bounds, inside_masks, ray_box
 from go_core.errors import EmptyHullError
-from go_core.hull import hull_bounds, inside_masks
 from go_core.seeding import numpy_rng
 
 MIN_SPREAD_DEG = 15.0  # 4 photos around an object span ~90-180°; a static-background estimate ~1°
@@ -42,17 +42,6 @@ def optical_axis_angles(cameras: list[Camera]) -> np.ndarray:
 def rotation_spread_deg(cameras: list[Camera]) -> float:
     """The largest angle between two cameras' optical axes (0 for one camera)."""
     return float(optical_axis_angles(cameras).max()) if len(cameras) > 1 else 0.0
-
-
-def _ray_box(origin: np.ndarray, dirs: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """Entry and exit distances of rays [N,3] through an axis-aligned box (slab method)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / dirs
-        t0 = (lo - origin) * inv
-        t1 = (hi - origin) * inv
-    tmin = np.nan_to_num(np.minimum(t0, t1), nan=-np.inf).max(1)
-    tmax = np.nan_to_num(np.maximum(t0, t1), nan=np.inf).min(1)
-    return np.maximum(tmin, 0.0), tmax
 
 
 def mask_coverage(
@@ -90,7 +79,7 @@ def mask_coverage(
         R = cam.world_to_cam[:3, :3]
         dirs = pix @ np.linalg.inv(cam.K).T @ R  # camera rays rotated to world: (R^T d)^T = d^T R
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        t_in, t_out = _ray_box(cam.center, dirs, lo, hi)
+        t_in, t_out = ray_box(cam.center, dirs, lo, hi)
         hit = np.zeros(pick.size, bool)
         others = [j for j in range(len(cameras)) if j != i]
         s = (np.arange(samples_per_ray) + 0.5) / samples_per_ray

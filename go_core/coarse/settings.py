@@ -1,4 +1,5 @@
-"""Settings of the 3DGS optimisation loop (go_core.training), one flat dataclass as gsplat's strategies are.
+"""Settings of the 3DGS optimisation loop (go_core.coarse.loop), one flat dataclass as gsplat's strategies
+are.
 
 ``CoarseConfig`` is the learning rates, the densification and the floater settings plus the loss weights and
 schedule, each under the one name users know from pipeline.yaml (``coarse.densify_from``,
@@ -63,7 +64,8 @@ class DensifyConfig:
 
 @dataclass
 class FloaterConfig:
-    """Floater elimination (go_core.floaters): every floater_every steps, floater_from..floater_until."""
+    """Floater elimination (go_core.coarse.floaters): every floater_every steps, from floater_from to
+    floater_until."""
 
     floaters: bool = setting(True, doc="floater elimination (ablation: false)")
     floater_every: int = setting(500, ge=0)
@@ -94,7 +96,7 @@ class FloaterConfig:
 
 @dataclass
 class RegularizerConfig:
-    """Weights of the sparse-view regularisers (go_core.regularizers; 0 = off: the loop is then
+    """Weights of the sparse-view regularisers (go_core.coarse.regularizers; 0 = off: the loop is then
     bit-identical to plain 3DGS)."""
 
     drop_gamma: float = setting(0.2, ge=0, lt=1, doc="DropGaussian: final drop rate (rate gamma t/T)")
@@ -106,7 +108,7 @@ class RegularizerConfig:
 
 @dataclass
 class PoseRefineConfig:
-    """Joint pose refinement (go_core.pose_refine.JointPoses): a rotation + translation correction per
+    """Joint pose refinement (go_core.poses.refine.JointPoses): a rotation + translation correction per
     training view optimised with the Gaussians through the rasterizer's viewmat gradients. The first
     training view is the gauge (kept as given). Off by default (after ``hull.align_poses`` it lowered
     test PSNR on the dev scenes, docs/coarse.md)."""

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import torch
 
+from go_core.coarse.settings import LearningRates
 from go_core.gaussians import Gaussians
-from go_core.train_settings import LearningRates
 
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 
