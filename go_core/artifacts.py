@@ -3,7 +3,7 @@
 File names are defined once, in go_core.artifact_files (a leaf module, so the folder formats of go_core,
 the ingested scene, masks and depth priors, take their names from it without an import cycle), and
 re-exported here; the step modules never spell one, and the runner's declared outputs come from
-go_pipeline.catalog, which lists these per step. Torch-free to import: readers import what they need.
+go_pipeline.steps.registry, which lists these per step. Torch-free to import: readers import what they need.
 
     from go_core import artifacts as art
     g = art.read_gaussians(inputs["hull"])         # Gaussians from the hull step's folder

@@ -1,8 +1,10 @@
-"""pipeline.yaml: load and check the DAG, read step VERSIONs without importing, resolve params.
+"""pipeline.yaml: load and check the DAG, find each step's declaration, resolve params.
 
-A step whose module has a params class (go_pipeline.steps.params.PARAMS_CLASSES) is typed: its params in
-pipeline.yaml, the profiles and ``--set`` are checked against the class (known name, type, range) and
-resolved into an instance of it; other steps (e.g. a pipeline of your own) take the type of each default.
+A packaged step is declared once in go_pipeline.steps.registry (params class, outputs, skip rules, version
+override): its params in pipeline.yaml, the profiles and ``--set`` are checked against the class (known
+name, type, range) and resolved into an instance of it. A step of your own names its outputs and params'
+defaults in pipeline.yaml (each default gives its type) and may declare ``VERSION`` / ``SKIP_IF_*`` in its
+module, read with ast without importing it.
 Everything here is cheap (yaml + ast + the torch-free params classes), so ``status`` and a no-op ``run``
 never import torch or a step.
 """
@@ -41,7 +43,7 @@ class StepSpec:
     description: str = ""
     params_class: type | None = None  # the step's typed params (None: untyped, the defaults give the types)
     upstream_params: dict[str, str] = field(default_factory=dict)  # field -> step whose params fill it
-    optional_outputs: tuple[str, ...] = ()  # written only in some runs (go_pipeline.catalog)
+    optional_outputs: tuple[str, ...] = ()  # written only in some runs (go_pipeline.steps.registry)
 
     @property
     def function(self) -> str:
@@ -228,25 +230,53 @@ def check_param_type(default: Any, value: Any, what: str, path: Path | str | Non
     return value
 
 
-def read_step_version(module: str, path: Path | str, step: str) -> str | None:
-    """The module's optional ``VERSION = "..."`` override, read from its source with ast (no import).
+@dataclass(frozen=True)
+class StepRules:
+    """What the runner decides about a step without running it: its ``version`` override (in the cache
+    key), the inputs whose skip skips it and the params whose emptiness skips it ({param: reason})."""
 
-    A step's code is part of its key anyway (go_pipeline.codehash); VERSION only forces a rerun when the
-    output must change without any code change (e.g. a model file changed under the same name)."""
-    source_file = _module_source(module, path, step)
-    tree = ast.parse(source_file.read_text(encoding="utf-8"), filename=str(source_file))
+    version: str | None = None
+    skip_if_skipped: tuple[str, ...] = ()
+    skip_if_empty: Mapping[str, str] = field(default_factory=dict)
+
+
+def step_rules(spec: StepSpec, path: Path | str) -> StepRules:
+    """A packaged step's rules from go_pipeline.steps.registry; a step of your own declares them at the top
+    of its module (``VERSION``, ``SKIP_IF_SKIPPED``, ``SKIP_IF_EMPTY``), read with ast, without importing."""
+    from go_pipeline.steps.registry import declaration
+
+    declared = declaration(spec.module)
+    if declared is not None:
+        return StepRules(declared.version, declared.skip_if_skipped, declared.skip_if_empty)
+    source = _module_source(spec.module, path, spec.name)
+    version = module_literal(source, "VERSION")
+    if version is not None and not isinstance(version, (str, int)):
+        raise PipelineError(f"step {spec.name!r}: VERSION must be a string literal", source)
+    skipped = module_literal(source, "SKIP_IF_SKIPPED") or ()
+    if not isinstance(skipped, tuple) or not all(isinstance(v, str) for v in skipped):
+        raise PipelineError("SKIP_IF_SKIPPED must be a tuple of input names", source)
+    empty = module_literal(source, "SKIP_IF_EMPTY") or {}
+    if not isinstance(empty, dict) or not all(isinstance(v, str) for v in (*empty, *empty.values())):
+        raise PipelineError("SKIP_IF_EMPTY must map param names to reasons", source)
+    return StepRules(None if version is None else str(version), skipped, empty)
+
+
+def module_literal(source: Path, name: str) -> Any:
+    """The literal a module assigns to ``name`` at its top level (None when it does not), read with ast."""
+    tree = ast.parse(source.read_text(encoding="utf-8"), filename=str(source))
     for node in tree.body:
         targets = (
             node.targets
             if isinstance(node, ast.Assign)
             else [node.target]
-            if isinstance(node, ast.AnnAssign)
+            if isinstance(node, ast.AnnAssign) and node.value is not None
             else []
         )
-        if any(isinstance(t, ast.Name) and t.id == "VERSION" for t in targets):
-            if isinstance(node.value, ast.Constant) and isinstance(node.value.value, (str, int)):
-                return str(node.value.value)
-            raise PipelineError(f"step {step!r}: VERSION in {source_file} must be a string literal", path)
+        if any(isinstance(t, ast.Name) and t.id == name for t in targets):
+            try:
+                return ast.literal_eval(node.value)
+            except ValueError:
+                raise PipelineError(f"{name} must be a literal", source) from None
     return None
 
 
@@ -352,16 +382,17 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
     inputs = body.get("inputs") or {}
     if not isinstance(inputs, dict) or not all(isinstance(v, str) for v in inputs.values()):
         raise PipelineError(f"step {name!r}: inputs must map input name -> step name (or '@scene')", path)
-    from go_pipeline.catalog import declared_outputs, optional_outputs
+    from go_pipeline.steps.registry import declaration
 
-    catalogued = declared_outputs(module)
+    declared = declaration(module)
+    catalogued = None if declared is None else [a.file for a in declared.outputs]
     if catalogued is not None and "outputs" in body and set(body["outputs"] or []) != set(catalogued):
         raise PipelineError(
-            f"step {name!r}: {module} writes {', '.join(catalogued)} (go_pipeline.catalog); "
+            f"step {name!r}: {module} writes {', '.join(catalogued)} (go_pipeline.steps.registry); "
             "pipeline.yaml need not list them",
             path,
         )
-    outputs = list(catalogued) if catalogued is not None else body.get("outputs") or []
+    outputs = catalogued if catalogued is not None else body.get("outputs") or []
     if not isinstance(outputs, list) or not all(isinstance(o, str) and o for o in outputs):
         raise PipelineError(f"step {name!r}: outputs must be a list of file names", path)
     for o in outputs:
@@ -386,7 +417,7 @@ def _parse_step(name: str, body: Any, path: Path) -> StepSpec:
         dict(params),
         str(body.get("description") or ""),
         params_class=cls,
-        optional_outputs=optional_outputs(module),
+        optional_outputs=() if declared is None else tuple(a.file for a in declared.sometimes),
     )
 
 
@@ -397,15 +428,15 @@ def step_params(module: str, params: dict[str, Any]) -> Any:
 
 
 def params_class_for(module: str) -> type | None:
-    """The typed params class of a step module (go_pipeline.steps.params), or None for untyped steps."""
-    from go_pipeline.steps.params import PARAMS_CLASSES
+    """The typed params class of a packaged step module (go_pipeline.steps.registry), or None."""
+    from go_pipeline.steps.registry import params_class
 
-    return PARAMS_CLASSES.get(module)
+    return params_class(module)
 
 
 def _typed_defaults(step: str, cls: type, values: dict[str, Any], path: Path) -> dict[str, Any]:
     """The class's defaults with pipeline.yaml's values applied, each checked; upstream fields left out."""
-    from go_pipeline.steps.params import upstream_fields
+    from go_pipeline.steps.registry import upstream_fields
 
     upstream = upstream_fields(cls)
     for key in values:
@@ -430,7 +461,7 @@ def _link_upstream_params(specs: dict[str, StepSpec], path: Path) -> dict[str, S
     (that step must be one of its ancestors, so its params are resolved first)."""
     from dataclasses import replace
 
-    from go_pipeline.steps.params import upstream_fields
+    from go_pipeline.steps.registry import upstream_fields
 
     linked = dict(specs)
     for name, spec in specs.items():

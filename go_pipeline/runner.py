@@ -24,10 +24,11 @@ from go_pipeline.hashing import FileHashCache, cache_key, combine_file_hashes, f
 from go_pipeline.pipeline import (
     SCENE_INPUT,
     Pipeline,
+    StepRules,
     StepSpec,
     load_pipeline,
-    read_step_version,
     require_installed_steps,
+    step_rules,
 )
 
 MAX_LOGS = 50
@@ -98,7 +99,7 @@ class StatusRow:
 class _Plan:
     pipeline: Pipeline
     params: dict[str, dict[str, Any]]
-    versions: dict[str, str | None]  # the optional VERSION override of each step module
+    rules: dict[str, StepRules]  # each step's version override and skip rules
     code: dict[str, CodeFingerprint]  # the source files each step runs
     scene_dir: Path
     workdir: Path
@@ -130,9 +131,9 @@ def _plan(
     require_installed_steps(pipeline, allow_custom_steps)
     params = pipeline.resolve_params(profile, overrides)
     names = list(pipeline.steps) if steps is None else list(steps)
-    versions = {n: read_step_version(pipeline.steps[n].module, pipeline.path, n) for n in names}
+    rules = {n: step_rules(pipeline.steps[n], pipeline.path) for n in names}
     code = {n: fingerprint(pipeline.steps[n].module) for n in names}
-    return _Plan(pipeline, params, versions, code, scene, store.workdir_for(scene, workdir), int(seed))
+    return _Plan(pipeline, params, rules, code, scene, store.workdir_for(scene, workdir), int(seed))
 
 
 def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
@@ -213,7 +214,7 @@ def _input_hashes(
 def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
     return cache_key(
         name,
-        plan.versions[name],
+        plan.rules[name].version,
         plan.params[name],
         plan.seed,
         {k: v["content_hash"] for k, v in inputs.items()},
@@ -433,8 +434,9 @@ def _run_one(
     if _verify_inputs(plan, spec, scene_hash, done, display, lock_fd, device, in_process):
         # an upstream was damaged and recomputed: its content (so this key) may differ
         return _run_one(plan, name, forced, scene_hash, done, display, lock_fd, device, in_process)
-    skip = cascade_skip(_module_file(spec), spec.inputs, done) or param_skip(
-        _module_file(spec), plan.params[name]
+    rules = plan.rules[name]
+    skip = cascade_skip(rules.skip_if_skipped, spec.inputs, done) or param_skip(
+        rules.skip_if_empty, plan.params[name]
     )
     if skip is None:
         display.log.info(f"  {name:<12} running  {key[:12]} ...")
@@ -501,7 +503,7 @@ def _run_one(
         manifest = build_manifest(
             step=name,
             key=key,
-            version=plan.versions[name],
+            version=plan.rules[name].version,
             code=plan.code[name].files,
             seed=plan.seed,
             params=plan.params[name],
@@ -751,8 +753,8 @@ def _what_changed(
     plan: _Plan, name: str, previous: dict[str, Any], inputs: dict[str, dict[str, Any]] | None
 ) -> list[str]:
     reasons: list[str] = []
-    if previous.get("version") != plan.versions[name]:
-        reasons.append(f"version changed {previous.get('version')} -> {plan.versions[name]}")
+    if previous.get("version") != plan.rules[name].version:
+        reasons.append(f"version changed {previous.get('version')} -> {plan.rules[name].version}")
     changed = changed_files(previous.get("code"), plan.code[name].files)
     if changed:
         more = f" (+{len(changed) - 3} more)" if len(changed) > 3 else ""

@@ -20,9 +20,3 @@ def write_skipped(ctx, artifact: art.Artifact, reason: str, **extra) -> None:
     art.write_json(ctx.out_dir, artifact, {"status": art.STATUS_SKIPPED, "reason": reason, **extra})
     ctx.record(status="skipped", reason=reason)
     ctx.log.warning("%s skipped: %s", ctx.step, reason)
-
-
-def repair_weights_missing(inputs: dict[str, Path]) -> str | None:
-    """Why the repair chain must skip (the ``weights`` step found no repair-model weights), or None."""
-    info = art.read_json(inputs["weights"], art.WEIGHTS_INFO)
-    return None if info["status"] == art.STATUS_OK else str(info["reason"])

@@ -25,9 +25,6 @@ from go_core import artifacts as art
 from go_core.errors import SceneError
 from go_core.repair.loo import load_clean_and_mask, load_run, run_is_done, run_job, run_one
 from go_core.repair.noise import difference_stats
-from go_pipeline.steps._common import repair_weights_missing, write_skipped
-
-SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import LooParams
@@ -38,11 +35,6 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
     from go_core.io.npz import write_npz_deterministic
     from go_core.repair.data import training_views
 
-    missing = repair_weights_missing(inputs)
-    if missing:  # no repair model: the pairs would never be used, so don't pay for N coarse runs
-        write_skipped(ctx, art.LOO_INFO, "repair model weights missing (see the weights step)")
-        write_npz_deterministic(art.LOO_PAIRS.path(ctx.out_dir), {})
-        return
     scene, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])  # coarse's cameras
     if len(views) < 2:
         raise SceneError(f"leave-one-out needs at least 2 training views, got {len(views)}", inputs["scene"])

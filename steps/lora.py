@@ -7,9 +7,9 @@ Pairs: Algorithm 1 (noise pairs on the fly, else leave-one-out pairs). Checkpoin
 every ``checkpoint_every`` steps; a killed step resumes from the newest one.
 
 Weights come from the ``weights`` step (local paths from its params or $GO_SD15_PATH /
-$GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG). When none is configured the step does not fake
-anything: ``lora.json`` says ``{"status": "skipped", "reason": ...}`` and the repair step (and so the report)
-falls back to the coarse model. Paths given but wrong already failed in the weights step
+$GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG). When none is configured the runner skips the
+step (steps/registry.py): ``lora.json`` says ``{"status": "skipped", "reason": ...}`` and the repair step (and
+so the report) falls back to the coarse model. Paths given but wrong already failed in the weights step
 (MissingWeightsError); files that exist but cannot be loaded raise here.
 ``finetune: false`` is the "no fine-tuning" ablation: ``status: "pretrained"`` (the repair step then uses the
 pretrained ControlNet without LoRA).
@@ -29,13 +29,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
-from go_pipeline.steps._common import repair_weights_missing, write_skipped
 from go_pipeline.steps.weights import compact_info, repair_model, weight_paths
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import LoraParams
-
-SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 
 def _pair_source(inputs: dict[str, Path], params: LoraParams, views):
@@ -142,10 +139,6 @@ def run(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     from go_core.repair.data import training_views
     from go_core.repair.tuning import TuneSettings, tune
 
-    missing = repair_weights_missing(inputs)
-    if missing:  # nothing configured: skip honestly (wrong paths already failed in the weights step)
-        write_skipped(ctx, art.LORA_INFO, missing, weights=weight_paths(inputs).describe())
-        return
     if repair_model(inputs) == "compact":
         _run_compact(ctx, inputs, params)
         return

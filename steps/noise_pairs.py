@@ -21,19 +21,12 @@ from go_core.repair.data import on_white, render_rgb_alpha, to_uint8, training_v
 from go_core.repair.noise import NoiseStats
 from go_core.repair.pairs import noise_pair
 from go_core.seeding import torch_generator
-from go_pipeline.steps._common import repair_weights_missing, write_skipped
-
-SKIP_IF_SKIPPED = ("weights",)  # the runner skips this step, without a worker, when that input skipped
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import NoisePairsParams
 
 
 def run(ctx, inputs: dict[str, Path], params: NoisePairsParams) -> None:
-    missing = repair_weights_missing(inputs)
-    if missing:
-        write_skipped(ctx, art.NOISE_PAIRS_INFO, "repair model weights missing (see the weights step)")
-        return
     loo = art.read_json(inputs["loo"], art.LOO_INFO)
     stats = NoiseStats.from_json(loo["stats"])
     coarse = art.read_gaussians(inputs["coarse"])

@@ -16,7 +16,7 @@ a change here reruns nothing by itself (a changed value changes the keys of the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Literal
 
 from go_core.coarse.settings import Backend, CoarseConfig
@@ -42,9 +42,15 @@ class SceneParams:
 
 @dataclass
 class MaskParams:
-    method: Literal["auto", "provided", "grabcut", "onnx"] = "auto"
+    method: Literal["auto", "provided", "grabcut", "onnx"] = setting(
+        "auto",
+        doc="auto | provided | grabcut | onnx",
+    )
     onnx_model: str = setting("", doc="local path of an ISNet/U2-Net ONNX export")
-    onnx_normalization: Literal["imagenet", "isnet"] = "imagenet"
+    onnx_normalization: Literal["imagenet", "isnet"] = setting(
+        "imagenet",
+        doc="imagenet (U2-Net) | isnet (mean 0.5, std 1)",
+    )
     grabcut_iterations: int = setting(5, ge=1)
     grabcut_border: float = setting(0.03, ge=0, lt=0.5, doc="image border fraction seeded as background")
 
@@ -56,7 +62,10 @@ class DepthParams:
 
 @dataclass
 class HullParams:
-    init: Literal["hull", "random"] = "hull"
+    init: Literal["hull", "random"] = setting(
+        "hull",
+        doc="hull | random (ablation: vanilla 3DGS random init in a camera-derived cube)",
+    )
     num_points: int = setting(20000, ge=1, doc="points sampled inside the hull (rejection sampling)")
     random_points: int = setting(20000, ge=1, doc="points of the random-init ablation")
     all_but_one: bool = setting(False, doc="keep points inside all masks but one (authors' code)")
@@ -172,36 +181,9 @@ class TurntableParams:
 class EvalParams:
     lpips_nets: list[Literal["vgg", "alex"]] = setting(["vgg", "alex"], doc="vgg = the paper's LPIPS")
     masked: bool = setting(False, doc="also report PSNR/SSIM/LPIPS over the GT mask only")
-    backend: Backend = "auto"
+    backend: Backend = setting("auto", doc="renderer backend")
     grid_views: int = setting(100, ge=0, doc="test views shown in test_grid.png")
     thumb_size: int = setting(128, ge=1, doc="longest side of each grid thumbnail, px")
     test_pose_iterations: int = setting(
         200, ge=0, doc="refined-pose models: per-test-view pose fit, model frozen"
     )
-
-
-# The params class of each step module (pipeline.yaml's `function: <module>:run`).
-PARAMS_CLASSES: dict[str, type] = {
-    "go_pipeline.steps.scene": SceneParams,
-    "go_pipeline.steps.mask": MaskParams,
-    "go_pipeline.steps.depth": DepthParams,
-    "go_pipeline.steps.hull": HullParams,
-    "go_pipeline.steps.coarse": CoarseParams,
-    "go_pipeline.steps.weights": WeightsParams,
-    "go_pipeline.steps.loo": LooParams,
-    "go_pipeline.steps.noise_pairs": NoisePairsParams,
-    "go_pipeline.steps.lora": LoraParams,
-    "go_pipeline.steps.repair": RepairParams,
-    "go_pipeline.steps.export": ExportParams,
-    "go_pipeline.steps.turntable": TurntableParams,
-    "go_pipeline.steps.eval": EvalParams,
-}
-
-
-def upstream_fields(cls: type) -> dict[str, type]:
-    """Fields filled with another step's params: {field name: that step's params class}."""
-    from go_core.config import field_types
-
-    params_classes = set(PARAMS_CLASSES.values())
-    types = field_types(cls)
-    return {f.name: types[f.name] for f in fields(cls) if types[f.name] in params_classes}

@@ -37,8 +37,6 @@ from go_pipeline.steps._common import write_skipped
 if TYPE_CHECKING:
     from go_pipeline.steps.params import RepairParams
 
-SKIP_IF_SKIPPED = ("lora",)  # the runner skips this step, without a worker, when that input skipped
-
 
 def _compact_engine(inputs: dict[str, Path], lora_info: dict, use_lora: bool, device: str):
     """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the lora step's artifact."""
@@ -101,11 +99,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     if mode == "no_repair":
         write_skipped(ctx, art.REPAIR_INFO, "ablation: no repair (mode no_repair)")
         return
-    lora_info = art.read_json(inputs["lora"], art.LORA_INFO)
-    if lora_info.get("status") == "skipped":
-        reason = lora_info.get("reason", "no reason given")
-        write_skipped(ctx, art.REPAIR_INFO, f"lora step skipped: {reason}")
-        return
+    lora_info = art.read_json(inputs["lora"], art.LORA_INFO)  # a skipped lora step skips this one (registry)
     device = str(ctx.device)
     repair_model = str(lora_info.get("repair_model", "sd15"))
     settings = params  # RepairSettings with the coarse step's settings (params.coarse)

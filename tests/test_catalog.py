@@ -1,5 +1,5 @@
 """The artifact catalog: file names in one place (go_core.artifacts), the runner's declared outputs from it
-(go_pipeline.catalog), and no step spelling a file name."""
+(go_pipeline.steps.registry), and no step spelling a file name."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ import re
 from pathlib import Path
 
 from go_core import artifacts as art
-from go_pipeline.catalog import OPTIONAL_OUTPUTS, STEP_OUTPUTS
 from go_pipeline.pipeline import load_pipeline
-from go_pipeline.steps.params import PARAMS_CLASSES
+from go_pipeline.steps.registry import STEPS
 
 REPO = Path(__file__).resolve().parents[1]
 FILE_NAME = re.compile(r"^[\w.-]+\.(npz|npy|json|png|gif|ply|safetensors|pt|jpg|csv|mp4)$")
@@ -39,11 +38,11 @@ def test_the_finder_of_file_names_finds_them():
     assert not FILE_NAME.match("a photo of xxy5syt00") and not FILE_NAME.match("scene")
 
 
-def test_declared_outputs_come_from_the_catalog():
+def test_declared_outputs_come_from_the_registry():
     pipeline = load_pipeline()
-    assert set(STEP_OUTPUTS) == set(PARAMS_CLASSES)
+    assert {spec.module for spec in pipeline.steps.values()} == set(STEPS)
     for name, spec in pipeline.steps.items():
-        assert spec.outputs == tuple(a.file for a in STEP_OUTPUTS[spec.module]), name
+        assert spec.outputs == tuple(a.file for a in STEPS[spec.module].outputs), name
     assert "outputs:" not in (REPO / "pipeline.yaml").read_text()
 
 
@@ -58,6 +57,5 @@ def test_optional_outputs_are_declared_and_shown():
     for name, spec in pipeline.steps.items():
         assert not set(spec.outputs) & set(spec.optional_outputs), name
         assert set(spec.optional_outputs) <= names, name
-    assert set(OPTIONAL_OUTPUTS) <= set(STEP_OUTPUTS)
     (repair_line,) = [line for line in dag_lines(pipeline) if ". repair " in line]
     assert "gaussians.npz" in repair_line

@@ -170,8 +170,9 @@ def test_runner_skips_on_an_empty_param_without_a_worker(toy, monkeypatch):
 
 def test_depth_step_declares_its_runner_skip():
     from go_pipeline.skipping import param_skip
-    from go_pipeline.steps import depth
+    from go_pipeline.steps.registry import DEPTH_SKIP_REASON, STEPS
 
-    record = param_skip(depth.__file__, {"model_path": ""})
-    assert record["status"] == "skipped" and record["reason"] == depth.SKIP_IF_EMPTY["model_path"]
-    assert param_skip(depth.__file__, {"model_path": "/models/dpt"}) is None
+    rule = STEPS["go_pipeline.steps.depth"].skip_if_empty
+    record = param_skip(rule, {"model_path": ""})
+    assert record["status"] == "skipped" and record["reason"] == DEPTH_SKIP_REASON
+    assert param_skip(rule, {"model_path": "/models/dpt"}) is None

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from go_core.errors import PipelineError
-from go_pipeline.pipeline import load_pipeline, parse_set_argument, read_step_version
+from go_pipeline.pipeline import load_pipeline, parse_set_argument, step_rules
 
 MOD = "test_pipeline_yaml_mod"
 
@@ -65,7 +65,7 @@ def test_good_pipeline_order_and_params(tmp_path, step_module):
     assert p.resolve_params("dotted")["b"]["name"] == "y"
     assert p.resolve_params(None, {"b.rate": "1e-3"})["b"]["rate"] == 0.001  # YAML 1.1 reads 1e-3 as str
     assert p.resolve_params(None, {"b": {"anything": {"k": [1]}}})["b"]["anything"] == {"k": [1]}
-    assert read_step_version(MOD, p.path, "a") == "7"
+    assert step_rules(p.steps["a"], p.path).version == "7"
 
 
 def test_set_values_are_parsed_as_yaml():
@@ -80,8 +80,8 @@ def test_set_values_are_parsed_as_yaml():
 def test_packaged_pipeline_loads_and_no_step_needs_a_version_override():
     p = load_pipeline()
     assert p.order[0] == "scene" and {"mask", "hull", "coarse", "eval"} <= set(p.steps)
-    for name, spec in p.steps.items():
-        assert read_step_version(spec.module, p.path, name) is None  # their code is in the key
+    for spec in p.steps.values():
+        assert step_rules(spec, p.path).version is None  # their code is in the key
     for profile in p.profiles:
         p.resolve_params(profile)
 
@@ -229,8 +229,8 @@ def test_missing_module_and_optional_version(tmp_path, step_module):
         )
     )
     with pytest.raises(PipelineError, match=r"step 'a': module 'no_such_module_xyz' not found$"):
-        read_step_version("no_such_module_xyz", p.path, "a")
-    assert read_step_version(f"{MOD}_nover", p.path, "b") is None  # VERSION is an optional override
+        step_rules(p.steps["a"], p.path)
+    assert step_rules(p.steps["b"], p.path).version is None  # VERSION is an optional override
 
 
 def test_missing_pipeline_file(tmp_path):

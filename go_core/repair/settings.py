@@ -59,7 +59,12 @@ class RepairSettings:
     opacity_reset_every: int = setting(
         0, ge=0, doc="0: none (a reset below min_opacity would prune the model away)"
     )
-    min_opacity: float = setting(0.02, ge=0, lt=1)
+    min_opacity: float = setting(
+        0.02,
+        ge=0,
+        lt=1,
+        doc="prune below this opacity (coarse.min_opacity's role in the repair stage)",
+    )
     checkpoint_every: int = setting(200, ge=0)
     backend: Backend = "auto"
     coarse: CoarseConfig = setting(default_factory=CoarseConfig, doc="the coarse step's settings")

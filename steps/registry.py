@@ -1,0 +1,89 @@
+"""One declaration per packaged step: its params class, the files it writes, when the runner skips it
+without starting a worker, and an optional version override.
+
+The runner reads this at plan time (torch-free, no step module imported), so ``status`` and ``dag`` stay
+cheap. No step module imports it: editing a declaration reruns nothing by itself, except a changed
+``version``, which is part of the step's cache key. pipeline.yaml names the step's function and inputs and
+the values a user changes; every default lives in the params class (``go-pipeline params`` lists them).
+A step of your own (outside go_pipeline.steps) declares ``outputs:`` in pipeline.yaml and may declare
+``VERSION`` / ``SKIP_IF_SKIPPED`` / ``SKIP_IF_EMPTY`` at the top of its module (read with ast).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+from go_core import artifacts as art
+from go_pipeline.steps import params as p
+
+
+@dataclass(frozen=True)
+class StepDeclaration:
+    params: type  # the step's params class (steps/params.py)
+    outputs: tuple[art.Artifact, ...]  # written by every run (checked when the step returns)
+    sometimes: tuple[art.Artifact, ...] = ()  # written only in some runs (its info file says which)
+    skip_if_skipped: tuple[str, ...] = ()  # input names: the runner skips the step when one of them skipped
+    skip_if_empty: dict[str, str] = field(default_factory=dict)  # {param: reason}: skipped while it is empty
+    version: str | None = None  # forces a rerun without a code change (its code is in the key anyway)
+
+
+DEPTH_SKIP_REASON = "no depth model configured (depth.model_path is empty): the depth loss is off"
+
+STEPS: dict[str, StepDeclaration] = {
+    "go_pipeline.steps.scene": StepDeclaration(p.SceneParams, (art.SCENE_INFO, art.SCENE_VIEWS)),
+    "go_pipeline.steps.mask": StepDeclaration(p.MaskParams, (art.MASKS, art.MASK_INFO)),
+    "go_pipeline.steps.depth": StepDeclaration(
+        p.DepthParams, (art.DEPTH_INFO, art.DEPTH), skip_if_empty={"model_path": DEPTH_SKIP_REASON}
+    ),
+    "go_pipeline.steps.hull": StepDeclaration(
+        p.HullParams,
+        (art.GAUSSIANS, art.HULL_INFO),
+        sometimes=(art.CAMERAS,),  # hull.align_poses
+    ),
+    "go_pipeline.steps.coarse": StepDeclaration(
+        p.CoarseParams, (art.GAUSSIANS, art.COARSE_INFO, art.CURVES, art.CAMERAS)
+    ),
+    "go_pipeline.steps.weights": StepDeclaration(p.WeightsParams, (art.WEIGHTS_INFO,)),
+    "go_pipeline.steps.loo": StepDeclaration(
+        p.LooParams, (art.LOO_INFO, art.LOO_PAIRS), skip_if_skipped=("weights",)
+    ),
+    "go_pipeline.steps.noise_pairs": StepDeclaration(
+        p.NoisePairsParams, (art.NOISE_PAIRS_INFO,), (art.NOISE_PAIRS_PREVIEW,), skip_if_skipped=("weights",)
+    ),
+    "go_pipeline.steps.lora": StepDeclaration(
+        p.LoraParams,
+        (art.LORA_INFO,),
+        (art.LORA_WEIGHTS, art.COMPACT_WEIGHTS),  # sd15 / compact, when it tuned
+        skip_if_skipped=("weights",),
+    ),
+    "go_pipeline.steps.repair": StepDeclaration(
+        p.RepairParams,
+        (art.REPAIR_INFO,),
+        (art.GAUSSIANS, art.CURVES, art.REPAIR_PREVIEW),  # when it repaired (status ok)
+        skip_if_skipped=("lora",),
+    ),
+    "go_pipeline.steps.export": StepDeclaration(p.ExportParams, (art.POINT_CLOUD,)),
+    "go_pipeline.steps.turntable": StepDeclaration(
+        p.TurntableParams, (art.TURNTABLE, art.CONTACT_SHEET, art.CAMERA_PATH_VIDEO)
+    ),
+    "go_pipeline.steps.eval": StepDeclaration(p.EvalParams, (art.METRICS, art.TEST_GRID)),
+}
+
+
+def declaration(module: str) -> StepDeclaration | None:
+    """The declaration of a packaged step module, or None for a step of your own."""
+    return STEPS.get(module)
+
+
+def params_class(module: str) -> type | None:
+    found = STEPS.get(module)
+    return None if found is None else found.params
+
+
+def upstream_fields(cls: type) -> dict[str, type]:
+    """Fields filled with another step's params: {field name: that step's params class}."""
+    from go_core.config import field_types
+
+    params_classes = {d.params for d in STEPS.values()}
+    types = field_types(cls)
+    return {f.name: types[f.name] for f in fields(cls) if types[f.name] in params_classes}
