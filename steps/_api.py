@@ -1,7 +1,7 @@
 """The contract between the runner and a step function.
 
 A step module exposes ``run(ctx: StepContext, inputs: dict[str, Path], params: XParams) -> None``, where
-``params`` is an instance of the step's params class (steps/params.py ``PARAMS_CLASSES``: typed fields, the
+``params`` is an instance of the step's params class (steps/registry.py, steps/params.py: typed fields, the
 values resolved from pipeline.yaml, ``--profile`` and ``--set`` before anything runs); the step reads
 ``params.iterations``, never a default of its own. Its source and that of every go_core module it imports
 are part of the cache key (go_pipeline.codehash); an optional ``VERSION = "..."`` forces a rerun without a

@@ -1,12 +1,12 @@
-"""One typed params class per step: the names, types, ranges and defaults of every setting in pipeline.yaml.
+"""One typed params class per step: the names, types, ranges, defaults and docs of every setting.
 
 The runner resolves pipeline.yaml, ``--profile`` and ``--set`` against these classes at plan time (an unknown
 name, a wrong type or a value out of range is one clear error before anything runs) and hands each step its
 instance: ``run(ctx, inputs, params: CoarseParams)``; steps read ``params.iterations``, never a default of
-their own. pipeline.yaml keeps the values users edit; tests/test_params.py holds the two in step.
+their own. Each default is written here only (pipeline.yaml holds only values a user changes;
+tests/test_defaults_once.py); steps/registry.py pairs each class with its step.
 
-Adding a setting: a field here (``setting(default, ge=..., doc=...)``, ``Literal[...]`` for choices) and the
-same name and value in pipeline.yaml. A field whose type is another step's params class (``coarse:
+Adding a setting: a field here (``setting(default, ge=..., doc=...)``, ``Literal[...]`` for choices). A field whose type is another step's params class (``coarse:
 CoarseParams`` in ``LooParams``) is filled by the runner with that step's resolved params: a step that needs
 another step's settings receives them explicitly (and they are part of its cache key).
 
