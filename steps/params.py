@@ -6,9 +6,10 @@ instance: ``run(ctx, inputs, params: CoarseParams)``; steps read ``params.iterat
 their own. Each default is written here only (pipeline.yaml holds only values a user changes;
 tests/test_defaults_once.py); steps/registry.py pairs each class with its step.
 
-Adding a setting: a field here (``setting(default, ge=..., doc=...)``, ``Literal[...]`` for choices). A field whose type is another step's params class (``coarse:
-CoarseParams`` in ``LooParams``) is filled by the runner with that step's resolved params: a step that needs
-another step's settings receives them explicitly (and they are part of its cache key).
+Adding a setting: a field here (``setting(default, ge=..., doc=...)``, ``Literal[...]`` for choices). A field
+whose type is another step's params class (``coarse: CoarseParams`` in ``LooParams``) is filled by the runner
+with that step's resolved params: a step that needs another step's settings receives them explicitly (and
+they are part of its cache key).
 
 Torch-free (the runner imports it for ``status``); the step modules import it only for type checking, so
 a change here reruns nothing by itself (a changed value changes the keys of the steps that use it).
