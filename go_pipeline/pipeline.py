@@ -66,14 +66,7 @@ class Pipeline:
 
     def ancestors(self, name: str) -> set[str]:
         """Every step ``name`` depends on, transitively (not including itself)."""
-        seen: set[str] = set()
-        stack = list(self.steps[name].upstream)
-        while stack:
-            s = stack.pop()
-            if s not in seen:
-                seen.add(s)
-                stack.extend(self.steps[s].upstream)
-        return seen
+        return _ancestors(self.steps, name)
 
     def descendants(self, name: str) -> set[str]:
         return {s for s in self.steps if name in self.ancestors(s)}

@@ -110,6 +110,8 @@ class _Plan:
     external: dict[str, dict[str, Any]] = field(default_factory=dict)  # step -> external_inputs(...)
     verified: set[Path] = field(default_factory=set)  # artifacts whose files matched their sha256 this run
     recomputed: dict[str, StepResult] = field(default_factory=dict)  # damaged upstreams rerun mid-run
+    profile: str | None = None
+    overrides: dict[str, Any] = field(default_factory=dict)  # --set values, flat ("step.param": value)
 
 
 def _plan(
@@ -118,22 +120,29 @@ def _plan(
     profile: str | None,
     overrides: dict[str, Any] | None,
     seed: int,
-    pipeline_path: str | Path | None,
+    pipeline: Pipeline | str | Path | None,
     steps: Iterable[str] | None = None,
     allow_custom_steps: bool | None = None,
 ) -> _Plan:
+    """Everything a run or ``status`` decides before touching the work dir: resolved params, each step's
+    rules and code. ``pipeline``: the loaded pipeline (a run loads it once), or its file (None: packaged)."""
     scene = Path(scene_dir).resolve()
     if not scene.is_dir():
         raise SceneError("scene folder not found" if not scene.exists() else "not a folder", scene)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise PipelineError(f"seed must be an integer, got {seed!r}", "--seed")
-    pipeline = load_pipeline(pipeline_path)
+    if not isinstance(pipeline, Pipeline):
+        pipeline = load_pipeline(pipeline)
     require_installed_steps(pipeline, allow_custom_steps)
     params = pipeline.resolve_params(profile, overrides)
     names = list(pipeline.steps) if steps is None else list(steps)
     rules = {n: step_rules(pipeline.steps[n], pipeline.path) for n in names}
     code = {n: fingerprint(pipeline.steps[n].module) for n in names}
-    return _Plan(pipeline, params, rules, code, scene, store.workdir_for(scene, workdir), int(seed))
+    from go_pipeline.pipeline import flatten_overrides
+
+    plan = _Plan(pipeline, params, rules, code, scene, store.workdir_for(scene, workdir), int(seed))
+    plan.profile, plan.overrides = profile, flatten_overrides(overrides or {})
+    return plan
 
 
 def _scene_hash(plan: _Plan, cache_writable: bool) -> str:
@@ -225,6 +234,36 @@ def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- running
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run executes (nothing here is part of a cache key)."""
+
+    device: str = "auto"  # auto | cpu | cuda
+    in_process: bool = False  # run steps in this process (tests, debugging) instead of a worker each
+    quiet: bool = False
+    debug: bool = False  # a failed step's traceback on the terminal
+    on_start: Callable[[Path], None] | None = None  # called with the work dir once it is locked
+
+
+@dataclass(frozen=True)
+class _Selection:
+    steps: list[str]  # what runs, in run order
+    force: frozenset[str]  # rerun even when cached
+    until: str | None
+
+
+@dataclass
+class _Run:
+    """One run while the work dir's lock is held: what its steps share."""
+
+    plan: _Plan
+    options: RunOptions
+    display: Any  # go_pipeline.display.Display
+    lock_fd: int | None
+    scene_hash: str | None = None
+    done: dict[str, dict[str, Any]] = field(default_factory=dict)  # step -> the manifest of its artifact
+
+
 def run_pipeline(
     scene_dir: str | Path,
     *,
@@ -257,52 +296,56 @@ def run_pipeline(
     the GO_ALLOW_CUSTOM_STEPS environment variable decides).
     Raises GoError subclasses (PipelineError, SceneError, LockedError, StepFailed, a step's own GoError).
     """
-    pipeline = load_pipeline(pipeline_path)
+    pipeline = load_pipeline(pipeline_path)  # the one load of this run
     require_installed_steps(pipeline, allow_custom_steps)
-    if until is not None:
-        pipeline.require_step(until, "--until", from_file=False)
-        wanted = pipeline.ancestors(until) | {until}
-        selected = [n for n in pipeline.order if n in wanted]
-    else:
-        selected = pipeline.order
-    force = set(force)
-    for f in sorted(force):
-        pipeline.require_step(f, "--force", from_file=False)
+    selection = _select(pipeline, until, force)
+    options = RunOptions(device, in_process, quiet, debug, on_start)
     if device not in ("auto", "cpu", "cuda"):
         raise PipelineError(f"--device must be auto, cpu or cuda, got {device!r}")
     if device == "cuda":
         require_cuda()
-    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline.path, selected, allow_custom_steps)
-    plan.pipeline = pipeline
+    plan = _plan(scene_dir, workdir, profile, overrides, seed, pipeline, selection.steps, allow_custom_steps)
     plan.verify = bool(verify)
     plan.allow_outside = bool(allow_outside)
 
     from go_pipeline.lock import WorkdirLock
 
-    started, t0 = _utc_now(), time.perf_counter()
     created = not plan.workdir.exists()
-    try:
-        plan.workdir.mkdir(parents=True, exist_ok=True)
-        probe = plan.workdir / ".write-test"
-        probe.touch()
-        probe.unlink()
-    except OSError as e:
-        raise GoError(
-            f"cannot write the work dir ({e.strerror or e}); choose one with --workdir", plan.workdir
-        ) from None
-    options = dict(device=device, in_process=in_process, quiet=quiet, debug=debug, on_start=on_start)
-    from go_pipeline.pipeline import flatten_overrides
-
-    options["overrides"] = flatten_overrides(overrides or {})
+    _require_writable(plan.workdir)
     try:
         with WorkdirLock(plan.workdir) as lock:
-            return _run_locked(plan, selected, force, profile, until, options, lock.fd, started, t0)
+            return _run_locked(plan, selection, options, lock.fd)
     except GoError as e:
         # a first run refused by its input (not a step crash, whose traceback is in the log) leaves no
         # .go/ behind in the scene folder
         if created and not isinstance(e, StepFailed) and not _has_artifacts(plan.workdir):
             shutil.rmtree(plan.workdir, ignore_errors=True)
         raise
+
+
+def _select(pipeline: Pipeline, until: str | None, force: Iterable[str]) -> _Selection:
+    """The steps a run considers (``until`` and its ancestors, else all) and the forced ones, checked."""
+    if until is not None:
+        pipeline.require_step(until, "--until", from_file=False)
+        wanted = pipeline.ancestors(until) | {until}
+        steps = [n for n in pipeline.order if n in wanted]
+    else:
+        steps = pipeline.order
+    for f in sorted(set(force)):
+        pipeline.require_step(f, "--force", from_file=False)
+    return _Selection(steps, frozenset(force), until)
+
+
+def _require_writable(workdir: Path) -> None:
+    try:
+        workdir.mkdir(parents=True, exist_ok=True)
+        probe = workdir / ".write-test"
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        raise GoError(
+            f"cannot write the work dir ({e.strerror or e}); choose one with --workdir", workdir
+        ) from None
 
 
 def _has_artifacts(workdir: Path) -> bool:
@@ -322,64 +365,33 @@ def require_cuda() -> None:
         )
 
 
-def _run_locked(
-    plan: _Plan,
-    selected: list[str],
-    force: set[str],
-    profile: str | None,
-    until: str | None,
-    options: dict[str, Any],
-    lock_fd: int | None,
-    started: str,
-    t0: float,
-) -> RunSummary:
+def _run_locked(plan: _Plan, selection: _Selection, options: RunOptions, lock_fd: int | None) -> RunSummary:
     """The body of ``run_pipeline`` while the work dir's lock is held."""
     from go_pipeline.display import Display
 
-    pipeline = plan.pipeline
-    display = Display(_new_log_path(plan.workdir), quiet=options["quiet"], debug=options["debug"])
+    started, t0 = _utc_now(), time.perf_counter()
+    display = Display(_new_log_path(plan.workdir), quiet=options.quiet, debug=options.debug)
+    run = _Run(plan, options, display, lock_fd)
     try:
         display.log.debug(
-            f"go-pipeline run {plan.scene_dir} workdir={plan.workdir} profile={profile} "
-            f"seed={plan.seed} until={until} force={sorted(force)} pipeline={pipeline.path} "
-            f"python={sys.executable}"
+            f"go-pipeline run {plan.scene_dir} workdir={plan.workdir} profile={plan.profile} "
+            f"seed={plan.seed} until={selection.until} force={sorted(selection.force)} "
+            f"pipeline={plan.pipeline.path} python={sys.executable}"
         )
         store.check_scene_binding(plan.workdir, plan.scene_dir, bind=True)
         store.sweep_leftovers(plan.workdir)
-        if options["on_start"] is not None:
-            options["on_start"](plan.workdir)
-        needs_scene = any(up == SCENE_INPUT for n in selected for up in pipeline.steps[n].inputs.values())
-        scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
-        done: dict[str, dict[str, Any]] = {}
-        results: list[StepResult] = []
-        for name in selected:
-            results.append(
-                _run_one(
-                    plan,
-                    name,
-                    name in force,
-                    scene_hash,
-                    done,
-                    display,
-                    lock_fd,
-                    options["device"],
-                    options["in_process"],
-                )
-            )
+        if options.on_start is not None:
+            options.on_start(plan.workdir)
+        steps = plan.pipeline.steps
+        needs_scene = any(up == SCENE_INPUT for n in selection.steps for up in steps[n].inputs.values())
+        run.scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
+        results = [_run_one(run, name, name in selection.force) for name in selection.steps]
         results = [plan.recomputed.get(r.name, r) for r in results]
         _hash_cache(plan).save()  # model-file hashes found while keying the steps
         summary = RunSummary(
-            plan.scene_dir,
-            plan.workdir,
-            profile,
-            plan.seed,
-            results,
-            display.log_file,
-            started,
-            _utc_now(),
-            time.perf_counter() - t0,
-            dict(options.get("overrides") or {}),
-        )
+            plan.scene_dir, plan.workdir, plan.profile, plan.seed, results, display.log_file, started,
+            _utc_now(), time.perf_counter() - t0, dict(plan.overrides),
+        )  # fmt: skip
         _write_summary(plan.workdir, summary)
         ran = len(summary.ran)
         display.log.info(
@@ -396,61 +408,86 @@ def _run_locked(
         display.close()
 
 
-def _run_one(
-    plan: _Plan,
-    name: str,
-    forced: bool,
-    scene_hash: str | None,
-    done: dict[str, dict[str, Any]],
-    display,
-    lock_fd: int | None,
-    device: str,
-    in_process: bool,
-) -> StepResult:
-    from go_pipeline.manifest import build_manifest, check_manifest
-
-    spec = plan.pipeline.steps[name]
-    inputs = _input_hashes(spec, scene_hash, done, plan.scene_dir)
+def _run_one(run: _Run, name: str, forced: bool) -> StepResult:
+    """One step: reuse its cached artifact, else (after checking what it reads) skip or launch it, and
+    commit what it wrote under its key."""
+    plan, spec = run.plan, run.plan.pipeline.steps[name]
+    inputs = _input_hashes(spec, run.scene_hash, run.done, plan.scene_dir)
     assert inputs is not None  # topological order: every upstream is in `done`
     key = _key_for(plan, name, inputs)
-    final = store.artifact_path(plan.workdir, name, key)
-    display.current_step = name
-    manifest, problem = (None, None) if forced else _check_artifact(final, spec, plan.verify)
-    if problem is not None:
-        display.log.warning(f"  {name:<12} damaged  {key[:12]} ({problem}); recomputing")
-    if manifest is not None:
-        if plan.verify:
-            plan.verified.add(final)
-        done[name] = manifest
-        store.write_ref(plan.workdir, name, key)
-        record = manifest.get("record") or {}
-        status = "skipped" if record.get("status") == "skipped" else "cached"
-        display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
-        return StepResult(name, status, key, final, True, 0.0, record)
-
-    from go_pipeline.skipping import cascade_skip, param_skip, short_reason, write_skipped_outputs
-
-    display.open_log()
-    if _verify_inputs(plan, spec, scene_hash, done, display, lock_fd, device, in_process):
+    run.display.current_step = name
+    cached = _reuse(run, name, key, forced)
+    if cached is not None:
+        return cached
+    run.display.open_log()
+    if _verify_inputs(run, spec):
         # an upstream was damaged and recomputed: its content (so this key) may differ
-        return _run_one(plan, name, forced, scene_hash, done, display, lock_fd, device, in_process)
-    rules = plan.rules[name]
-    skip = cascade_skip(rules.skip_if_skipped, spec.inputs, done) or param_skip(
-        rules.skip_if_empty, plan.params[name]
-    )
+        return _run_one(run, name, forced)
+    skip = _runner_skip(run, name)
     if skip is None:
-        display.log.info(f"  {name:<12} running  {key[:12]} ...")
+        run.display.log.info(f"  {name:<12} running  {key[:12]} ...")
+    tmp, ckpt = _work_dirs(plan, name, key)
+    started = _utc_now()
+    result = _launch(run, name, _job(run, name, inputs, tmp, ckpt), skip)
+    final = _commit(run, name, key, inputs, tmp, result, started)
+    shutil.rmtree(ckpt, ignore_errors=True)
+    _remove_if_empty(ckpt.parent)
+    _log_result(run, name, key, result, ran_worker=skip is None)
+    status = "skipped" if result.records.get("status") == "skipped" else "ran"
+    return StepResult(name, status, key, final, False, result.wall_s, result.records)
+
+
+def _reuse(run: _Run, name: str, key: str, forced: bool) -> StepResult | None:
+    """The step's complete artifact for ``key``, taken from the cache (None: it must run; a damaged one
+    is said and recomputed)."""
+    plan = run.plan
+    final = store.artifact_path(plan.workdir, name, key)
+    manifest, problem = (
+        (None, None) if forced else _check_artifact(final, plan.pipeline.steps[name], plan.verify)
+    )
+    if problem is not None:
+        run.display.log.warning(f"  {name:<12} damaged  {key[:12]} ({problem}); recomputing")
+    if manifest is None:
+        return None
+    if plan.verify:
+        plan.verified.add(final)
+    run.done[name] = manifest
+    store.write_ref(plan.workdir, name, key)
+    record = manifest.get("record") or {}
+    status = "skipped" if record.get("status") == "skipped" else "cached"
+    run.display.log.info(f"  {name:<12} {status:<8} {key[:12]}")
+    return StepResult(name, status, key, final, True, 0.0, record)
+
+
+def _runner_skip(run: _Run, name: str) -> dict[str, str] | None:
+    """The record of a skip the runner decides without a worker (go_pipeline/skipping.py), or None."""
+    from go_pipeline.skipping import cascade_skip, param_skip
+
+    rules, spec = run.plan.rules[name], run.plan.pipeline.steps[name]
+    return cascade_skip(rules.skip_if_skipped, spec.inputs, run.done) or param_skip(
+        rules.skip_if_empty, run.plan.params[name]
+    )
+
+
+def _work_dirs(plan: _Plan, name: str, key: str) -> tuple[Path, Path]:
+    """A fresh temp folder for the step's outputs and its (persistent) checkpoint folder."""
     tmp = store.artifacts_root(plan.workdir, name) / f"{store.TMP_PREFIX}{key[:16]}-{os.getpid()}"
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     ckpt = store.checkpoint_path(plan.workdir, name, key)
     ckpt.mkdir(parents=True, exist_ok=True)
+    return tmp, ckpt
+
+
+def _job(run: _Run, name: str, inputs: dict[str, dict[str, Any]], tmp: Path, ckpt: Path) -> dict[str, Any]:
+    """What the worker needs to run the step (go_pipeline/worker.py reads it as JSON)."""
+    plan, spec = run.plan, run.plan.pipeline.steps[name]
     step_inputs = {
         n: (v["path"] if v["step"] is None else str(store.artifact_path(plan.workdir, v["step"], v["key"])))
         for n, v in inputs.items()
     }
-    job = {
+    return {
         "step": name,
         "module": spec.module,
         "callable": spec.callable,
@@ -459,27 +496,38 @@ def _run_one(
         "out_dir": str(tmp),
         "checkpoint_dir": str(ckpt),
         "seed": plan.seed,
-        "device": device,
+        "device": run.options.device,
         "parent_pid": os.getpid(),
         "pipeline_path": str(plan.pipeline.path),
         "sys_path": _worker_sys_path(),
     }
-    started = _utc_now()
-    from go_pipeline.executor import Execution, execute
 
+
+def _launch(run: _Run, name: str, job: dict[str, Any], skip: dict[str, str] | None):
+    """Run the step's worker (or, for a runner-decided skip, write its skipped outputs) into the job's
+    ``out_dir``; an exception removes that folder. Returns the execution record."""
+    from go_pipeline.executor import Execution, execute
+    from go_pipeline.skipping import write_skipped_outputs
+
+    spec, tmp = run.plan.pipeline.steps[name], Path(job["out_dir"])
     try:
         if skip is not None:  # nothing to do: no worker process (see go_pipeline/skipping.py)
             write_skipped_outputs(tmp, spec.outputs, skip, _module_file(spec))
-            result = Execution(True, 0.0, 0.0, 0.0, "cpu", dict(skip))
-        else:
-            result = execute(
-                job, display, in_process=in_process, keep_fds=(lock_fd,) if lock_fd is not None else ()
-            )
+            return Execution(True, 0.0, 0.0, 0.0, "cpu", dict(skip))
+        keep = (run.lock_fd,) if run.lock_fd is not None else ()
+        return execute(job, run.display, in_process=run.options.in_process, keep_fds=keep)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     finally:
-        display.end_step()
+        run.display.end_step()
+
+
+def _commit(run: _Run, name: str, key: str, inputs, tmp: Path, result, started: str) -> Path:
+    """Check what the step wrote, write its manifest and rename ``tmp`` into place as the artifact of
+    ``key``; a failed step raises (its error, or StepFailed) and leaves nothing behind."""
+    plan, spec, display = run.plan, run.plan.pipeline.steps[name], run.display
+    final = store.artifact_path(plan.workdir, name, key)
     try:
         if not result.ok:
             level = logging.INFO if display.debug else logging.DEBUG  # --debug: the step's traceback
@@ -492,36 +540,11 @@ def _run_one(
             raise StepFailed(f"step {name!r} failed: {result.error_type}: {result.error_message}{tb_hint}")
         missing = [o for o in spec.outputs if not (tmp / o).is_file()]
         if missing:
-            source = _module_file(spec)
             raise StepFailed(
-                f"step {name!r} did not write its declared output(s): {', '.join(missing)}", source
+                f"step {name!r} did not write its declared output(s): {', '.join(missing)}",
+                _module_file(spec),
             )
-        outputs = folder_hashes(tmp)
-        outputs.pop(store.MANIFEST, None)
-        sizes = {rel: (tmp / rel).stat().st_size for rel in outputs}
-        content_hash = combine_file_hashes(outputs)
-        manifest = build_manifest(
-            step=name,
-            key=key,
-            version=plan.rules[name].version,
-            code=plan.code[name].files,
-            seed=plan.seed,
-            params=plan.params[name],
-            inputs=inputs,
-            outputs=outputs,
-            output_sizes=sizes,
-            content_hash=content_hash,
-            wall_s=result.wall_s,
-            cpu_s=result.cpu_s,
-            peak_mem_mb=result.peak_mem_mb,
-            device=result.device,
-            started=started,
-            finished=_utc_now(),
-            record=result.records,
-            function=spec.function,
-            external=_external(plan, name),
-        )
-        check_manifest(manifest, tmp / store.MANIFEST)
+        manifest = _manifest(run, name, key, inputs, tmp, result, started)
         from go_core.io.atomic import atomic_write_json
 
         atomic_write_json(tmp / store.MANIFEST, manifest)
@@ -535,21 +558,56 @@ def _run_one(
         raise
     store.write_ref(plan.workdir, name, key)
     plan.verified.add(final)  # hashed just now
-    shutil.rmtree(ckpt, ignore_errors=True)
-    _remove_if_empty(ckpt.parent)
-    done[name] = manifest
+    run.done[name] = manifest
+    return final
+
+
+def _manifest(run: _Run, name: str, key: str, inputs, tmp: Path, result, started: str) -> dict[str, Any]:
+    """The artifact's manifest (checked against data_schema/step_manifest.schema.json)."""
+    from go_pipeline.manifest import build_manifest, check_manifest
+
+    plan = run.plan
+    outputs = folder_hashes(tmp)
+    outputs.pop(store.MANIFEST, None)
+    manifest = build_manifest(
+        step=name,
+        key=key,
+        version=plan.rules[name].version,
+        code=plan.code[name].files,
+        seed=plan.seed,
+        params=plan.params[name],
+        inputs=inputs,
+        outputs=outputs,
+        output_sizes={rel: (tmp / rel).stat().st_size for rel in outputs},
+        content_hash=combine_file_hashes(outputs),
+        wall_s=result.wall_s,
+        cpu_s=result.cpu_s,
+        peak_mem_mb=result.peak_mem_mb,
+        device=result.device,
+        started=started,
+        finished=_utc_now(),
+        record=result.records,
+        function=plan.pipeline.steps[name].function,
+        external=_external(plan, name),
+    )
+    check_manifest(manifest, tmp / store.MANIFEST)
+    return manifest
+
+
+def _log_result(run: _Run, name: str, key: str, result, ran_worker: bool) -> None:
+    from go_pipeline.skipping import short_reason
+
     status = "skipped" if result.records.get("status") == "skipped" else "ran"
     reason = str(result.records.get("reason") or "") if status == "skipped" else ""
     # a long reason was logged in full by the step: its first clause here ("repair model weights missing")
     extra = f" ({short_reason(reason) if len(reason) > 80 else reason})" if reason else ""
-    if skip is not None:
-        display.log.info(f"  {name:<12} skipped  {key[:12]} {'(no worker)':>34}{extra}")
+    if not ran_worker:
+        run.display.log.info(f"  {name:<12} skipped  {key[:12]} {'(no worker)':>34}{extra}")
     else:
-        display.log.info(
+        run.display.log.info(
             f"  {name:<12} {status:<8} {key[:12]} {result.wall_s:7.1f} s  cpu {result.cpu_s:6.1f} s  "
             f"peak {result.peak_mem_mb:7.0f} MiB{extra}"
         )
-    return StepResult(name, status, key, final, False, result.wall_s, result.records)
 
 
 def _check_artifact(artifact: Path, spec: StepSpec, full: bool) -> tuple[dict[str, Any] | None, str | None]:
@@ -567,33 +625,22 @@ def _check_artifact(artifact: Path, spec: StepSpec, full: bool) -> tuple[dict[st
     return manifest, None
 
 
-def _verify_inputs(
-    plan: _Plan,
-    spec: StepSpec,
-    scene_hash: str | None,
-    done: dict[str, dict[str, Any]],
-    display,
-    lock_fd: int | None,
-    device: str,
-    in_process: bool,
-) -> bool:
+def _verify_inputs(run: _Run, spec: StepSpec) -> bool:
     """Before a step reads its upstream artifacts: check each one's files against their sha256 (once per
     run). A damaged one is recomputed (one log line); returns True when that happened."""
-    recomputed = False
+    plan, recomputed = run.plan, False
     for up in spec.upstream:
-        artifact = store.artifact_path(plan.workdir, up, done[up]["key"])
+        artifact = store.artifact_path(plan.workdir, up, run.done[up]["key"])
         if artifact in plan.verified:
             continue
         try:
             store.verify_artifact(artifact, full=True)
         except store.DamagedArtifact as e:
-            display.log.warning(
-                f"  {up:<12} damaged  {done[up]['key'][:12]} ({e.message}); "
+            run.display.log.warning(
+                f"  {up:<12} damaged  {run.done[up]['key'][:12]} ({e.message}); "
                 f"recomputing before {spec.name} reads it"
             )
-            plan.recomputed[up] = _run_one(
-                plan, up, True, scene_hash, done, display, lock_fd, device, in_process
-            )
+            plan.recomputed[up] = _run_one(run, up, True)
             recomputed = True
             continue
         plan.verified.add(artifact)
