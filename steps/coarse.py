@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.coarse.depth_prior import load_depth_priors
-from go_core.coarse.loop import CheckpointSpec, TrainView, optimize
+from go_core.coarse.loop import TrainView, optimize
+from go_core.io.checkpoint import CheckpointSpec
 from go_core.io.curves import write_curves
 from go_core.poses.refine import apply_corrections
 from go_core.seeding import torch_generator

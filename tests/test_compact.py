@@ -254,8 +254,8 @@ def test_conv_lora_starts_as_the_identity_and_merges_exactly(tiny_cache):
 def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
     upstream, tmp_path, tiny_cache, monkeypatch
 ):
-    import go_core.coarse.loop as loop
     from go_core.gaussians import Gaussians
+    from go_core.io.checkpoint import Checkpoints
 
     root, dirs = upstream
     lora_ctx = _lora(tmp_path / "l", dirs, LORA)
@@ -266,7 +266,7 @@ def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
         assert 500 <= v["t"] <= 1000 and v["w"] == pytest.approx(v["t"] / 1000, abs=1e-3)
         assert v["lambda"] > 0
 
-    original = loop._save_checkpoint
+    original = Checkpoints.save
     calls = []
 
     def save_then_die(*args, **kwargs):
@@ -274,10 +274,10 @@ def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
         calls.append(1)
         raise KeyboardInterrupt("simulated kill after the first repair checkpoint")
 
-    monkeypatch.setattr(loop, "_save_checkpoint", save_then_die)
+    monkeypatch.setattr(Checkpoints, "save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         _repair(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR)
-    monkeypatch.setattr(loop, "_save_checkpoint", original)
+    monkeypatch.setattr(Checkpoints, "save", original)
     resumed = _repair(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR)
     assert calls and resumed.records["resumed_from"] == 5
     a = Gaussians.load(full.out_dir / "gaussians.npz")

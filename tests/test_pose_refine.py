@@ -148,7 +148,8 @@ def test_joint_refinement_recovers_a_planted_3_degree_error():
 
 
 def test_joint_refinement_resumes_bit_identical(tmp_path):
-    from go_core.coarse.loop import CheckpointSpec, optimize
+    from go_core.coarse.loop import optimize
+    from go_core.io.checkpoint import CheckpointSpec
     from go_core.seeding import torch_generator
 
     _, views, init = _joint_scene()

@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from go_core.camera import look_at
-from go_core.coarse.loop import CheckpointSpec, CoarseConfig, NoDensify, TrainView, optimize
+from go_core.coarse.loop import CoarseConfig, NoDensify, TrainView, optimize
 from go_core.config import SettingError
 from go_core.gaussians import Gaussians
+from go_core.io.checkpoint import CheckpointSpec
 from go_core.render import render_gaussians
 
 BACKEND = "cpu"

@@ -41,20 +41,21 @@ def test_planted_pickle_is_not_executed_sanity(tmp_path):
 
 
 def test_planted_coarse_checkpoint_does_not_execute(tmp_path):
-    from go_core.coarse.loop import CheckpointSpec, _load_newest
+    from go_core.coarse.loop import CHECKPOINT
+    from go_core.io.checkpoint import Checkpoints, CheckpointSpec
 
     canary = tmp_path / "canary"
     _plant(tmp_path / "ckpt" / "ckpt_9999999.pt", canary)
-    assert _load_newest(CheckpointSpec(tmp_path / "ckpt"), "0" * 16) is None
+    assert Checkpoints(CheckpointSpec(tmp_path / "ckpt"), *CHECKPOINT).newest("0" * 16) is None
     assert not canary.exists()
 
 
 def test_planted_lora_checkpoint_does_not_execute(tmp_path):
-    from go_core.repair.tuning import _newest
+    from go_core.repair.tuning import _checkpoints
 
     canary = tmp_path / "canary"
     _plant(tmp_path / "ckpt" / "lora_step_9999999.pt", canary)
-    assert _newest(tmp_path / "ckpt", "0" * 16) is None
+    assert _checkpoints(tmp_path / "ckpt", 1).newest("0" * 16) is None
     assert not canary.exists()
 
 

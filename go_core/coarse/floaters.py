@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from go_core.coarse.settings import SCHEDULES, FloaterConfig
 
-__all__ = ["SCHEDULES", "FloaterConfig", "floater_mask", "knn_mean_distance"]
+__all__ = ["SCHEDULES", "FloaterConfig", "FloaterElimination", "floater_mask", "knn_mean_distance"]
 
 
 def knn_mean_distance(points: np.ndarray, k: int | None = None) -> np.ndarray:
@@ -44,3 +44,28 @@ def floater_mask(
         remove = np.zeros(len(d), dtype=bool)
         remove[order[:limit]] = True
     return remove
+
+
+class FloaterElimination:
+    """Floater elimination as a training strategy: at each step of ``config``'s schedule (``floater_due``),
+    the Gaussians ``floater_mask`` flags are removed from the optimiser and the densification strategy is
+    told which were kept. ``after_step`` returns that pass's record (None when none was due)."""
+
+    def __init__(self, config: FloaterConfig) -> None:
+        self.config = config
+
+    def after_step(self, step: int, opt, densify) -> dict | None:
+        """``opt``: the ``GaussianOptimizer``; ``densify``: the ``Strategy`` whose statistics follow."""
+        if not self.config.floater_due(step):
+            return None
+        import torch
+
+        lam = self.config.floater_lambda_at(step)
+        means = opt.params["means"].detach().numpy()
+        remove = floater_mask(means, lam, max_fraction=self.config.floater_max_remove_fraction)
+        removed = int(remove.sum())
+        if removed:
+            keep = torch.from_numpy(~remove)
+            opt.keep(keep)
+            densify.on_external_prune(keep)
+        return {"step": step, "lambda": round(lam, 6), "removed": removed, "remaining": len(opt)}

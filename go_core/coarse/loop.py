@@ -27,25 +27,24 @@ from __future__ import annotations
 
 import contextlib
 import gc
-import hashlib
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from go_core.camera import Camera
 from go_core.coarse.densify import DensifyStrategy, NoDensify, Strategy
-from go_core.coarse.floaters import floater_mask
+from go_core.coarse.floaters import FloaterElimination
 from go_core.coarse.losses import depth_loss, photometric_terms
 from go_core.coarse.optim import GaussianOptimizer
 from go_core.coarse.regularizers import drop_compensation, drop_rate, regularization_loss
 from go_core.coarse.settings import CoarseConfig
 from go_core.gaussians import Gaussians
+from go_core.io.checkpoint import Checkpoints, CheckpointSpec, fingerprint_of
 
-CHECKPOINT_FORMAT = 1
+CHECKPOINT = ("ckpt", 1)  # checkpoint file prefix and format
 
 
 @dataclass
@@ -67,15 +66,6 @@ class TrainView:
             return None if a is None else torch.as_tensor(np.asarray(a, np.float32))
 
         return TrainView(camera, t(image), t(mask), t(depth), **kw)
-
-
-@dataclass
-class CheckpointSpec:
-    """Save every ``every`` iterations into ``directory`` (atomically, keeping the newest ``keep``)."""
-
-    directory: Path
-    every: int = 500
-    keep: int = 1
 
 
 @dataclass
@@ -218,30 +208,6 @@ def _rng_state(generator: torch.Generator) -> torch.Tensor:
     return generator.get_state().clone()
 
 
-def _save_checkpoint(spec: CheckpointSpec, payload: dict, step: int) -> None:
-    from go_core.io.atomic import atomic_torch_save
-
-    spec.directory.mkdir(parents=True, exist_ok=True)
-    atomic_torch_save(spec.directory / f"ckpt_{step:07d}.pt", payload)
-    old = sorted(spec.directory.glob("ckpt_*.pt"))[: -max(spec.keep, 1)]
-    for p in old:
-        p.unlink(missing_ok=True)
-
-
-def _load_newest(spec: CheckpointSpec, fingerprint: str) -> dict | None:
-    from go_core.io.checkpoint import try_load_checkpoint
-
-    if not spec.directory.is_dir():
-        return None
-    for path in sorted(spec.directory.glob("ckpt_*.pt"), reverse=True):
-        payload = try_load_checkpoint(path)  # tensors and plain containers only: never code
-        if not isinstance(payload, dict):
-            continue
-        if payload.get("format") == CHECKPOINT_FORMAT and payload.get("fingerprint") == fingerprint:
-            return payload
-    return None
-
-
 def optimize(
     gaussians: Gaussians,
     views: list[TrainView],
@@ -271,6 +237,7 @@ def optimize(
     opt = GaussianOptimizer(g0, config, extent)
     if strategy is None:
         strategy = DensifyStrategy(config, extent, len(opt))
+    floaters = FloaterElimination(config)
     stats = TrainStats(initial_count=len(g0), max_count=len(g0))
     stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
     poses = None
@@ -281,12 +248,12 @@ def optimize(
         poses = JointPoses(cams, *lrs, config.pose_refine_from, config.iterations)
     order: list[int] = []
     start = 0
-    fingerprint = hashlib.sha256(
-        (config.fingerprint() + f"|{len(views)}|{len(g0)}|{start_sh_degree}|{extent:.12g}").encode()
-    ).hexdigest()[:16]
-
-    if checkpoint is not None:
-        payload = _load_newest(checkpoint, fingerprint)
+    fingerprint = fingerprint_of(
+        [config.fingerprint(), len(views), len(g0), start_sh_degree, f"{extent:.12g}"]
+    )
+    ckpts = None if checkpoint is None else Checkpoints(checkpoint, *CHECKPOINT)
+    if ckpts is not None:
+        payload = ckpts.newest(fingerprint)
         if payload is not None:
             opt.load_state_dict(payload["optimizer"])
             strategy.load_state_dict(payload["strategy"])
@@ -335,23 +302,11 @@ def optimize(
             if poses is not None:
                 poses.step(step)
             changed = strategy.after_step(step, opt, generator)
-            if config.floater_due(step):
-                lam = config.floater_lambda_at(step)
-                remove = floater_mask(
-                    opt.params["means"].detach().numpy(),
-                    lam,
-                    max_fraction=config.floater_max_remove_fraction,
-                )
-                n_removed = int(remove.sum())
-                if n_removed:
-                    keep = torch.from_numpy(~remove)
-                    opt.keep(keep)
-                    strategy.on_external_prune(keep)
-                stats.floaters_removed += n_removed
-                stats.floater_passes.append(
-                    {"step": step, "lambda": round(lam, 6), "removed": n_removed, "remaining": len(opt)}
-                )
-                changed = {**changed, "floaters": n_removed}
+            floater_pass = floaters.after_step(step, opt, strategy)
+            if floater_pass is not None:
+                stats.floaters_removed += floater_pass["removed"]
+                stats.floater_passes.append(floater_pass)
+                changed = {**changed, "floaters": floater_pass["removed"]}
             stats.max_count = max(stats.max_count, len(opt))
             stats.iterations = step
             if step % max(config.log_every, 1) == 0 or step == config.iterations:
@@ -366,22 +321,15 @@ def optimize(
                 )
             if on_progress is not None:
                 on_progress(step, {"loss": loss.item(), "n": len(opt), "view": index, **parts, **changed})
-            if (
-                checkpoint is not None
-                and checkpoint.every > 0
-                and step % checkpoint.every == 0
-                and step < config.iterations
-            ):
+            if ckpts is not None and ckpts.due(step, config.iterations):
                 stats.densify = dict(strategy.counts)
                 stats.final_count = len(opt)
                 if poses is not None:
                     stats.pose_corrections = poses.corrections()
-                _save_checkpoint(
-                    checkpoint,
+                ckpts.save(
+                    step,
+                    fingerprint,
                     {
-                        "format": CHECKPOINT_FORMAT,
-                        "fingerprint": fingerprint,
-                        "step": step,
                         "optimizer": opt.state_dict(),
                         "strategy": strategy.state_dict(),
                         "rng": _rng_state(generator),
@@ -389,7 +337,6 @@ def optimize(
                         "stats": stats.to_dict(),
                         **({"poses": poses.state_dict()} if poses is not None else {}),
                     },
-                    step,
                 )
     stats.final_count = len(opt)
     stats.densify = dict(strategy.counts)
@@ -401,7 +348,6 @@ def optimize(
 
 
 __all__ = [
-    "CheckpointSpec",
     "CoarseConfig",
     "NoDensify",
     "Strategy",

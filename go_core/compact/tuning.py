@@ -10,8 +10,6 @@ metadata: no pickle. A restarted run continues from the newest checkpoint and en
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -21,10 +19,11 @@ import torch
 import torch.nn.functional as F
 
 from go_core.compact.restorer import CompactRestorer
+from go_core.io.checkpoint import Checkpoints, CheckpointSpec, LossLog, fingerprint_of
 from go_core.repair.pairs import Pair, pair_tensors
 from go_core.seeding import numpy_rng, torch_generator
 
-CKPT_FORMAT = "compact-tune-1"
+CKPT = ("compact_step", "compact-tune-1")  # checkpoint file prefix and format
 
 
 @dataclass(frozen=True)
@@ -39,8 +38,7 @@ class CompactTuneSettings:
     rank: int = 8
 
     def fingerprint(self, extra: str = "") -> str:
-        blob = json.dumps({"s": asdict(self), "x": extra}, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+        return fingerprint_of({"s": asdict(self), "x": extra})
 
 
 def pair_loss(model: CompactRestorer, degraded: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
@@ -59,35 +57,8 @@ def held_out_loss(model: CompactRestorer, pairs: list[tuple[torch.Tensor, torch.
         model.train(was)
 
 
-def _ckpt_paths(directory: Path) -> list[Path]:
-    return sorted(directory.glob("compact_step_*.safetensors")) if directory.is_dir() else []
-
-
-def _save(directory: Path, tensors: dict[str, torch.Tensor], meta: dict, step: int, keep: int = 2) -> None:
-    from go_core.io.safetensors_file import write_safetensors
-
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / f"compact_step_{step:07d}.safetensors"
-    tensors = {k: v.detach().contiguous().clone() for k, v in tensors.items()}
-    write_safetensors(path, tensors, {"state": json.dumps(meta, sort_keys=True)})
-    for old in _ckpt_paths(directory)[:-keep]:
-        old.unlink(missing_ok=True)
-
-
-def _newest(directory: Path, fingerprint: str) -> tuple[dict[str, torch.Tensor], dict] | None:
-    from safetensors import SafetensorError
-    from safetensors.torch import safe_open
-
-    for path in reversed(_ckpt_paths(directory)):
-        try:
-            with safe_open(str(path), framework="pt") as f:
-                meta = json.loads((f.metadata() or {}).get("state", "{}"))
-                if meta.get("format") != CKPT_FORMAT or meta.get("fingerprint") != fingerprint:
-                    continue
-                return {k: f.get_tensor(k) for k in f.keys()}, meta  # noqa: SIM118
-        except (SafetensorError, OSError, ValueError):
-            continue  # a torn file cannot exist (atomic writes); anything unreadable is simply not used
-    return None
+def _checkpoints(directory: Path | None, every: int) -> Checkpoints | None:
+    return None if directory is None else Checkpoints(CheckpointSpec(Path(directory), every, keep=2), *CKPT)
 
 
 def tune_compact(
@@ -114,12 +85,13 @@ def tune_compact(
     opt = torch.optim.Adam(params, lr=settings.lr, betas=tuple(settings.betas))
     gen = torch_generator(int(seed), "compact_noise")
     rng = numpy_rng(int(seed), "compact_batches")
-    losses: list[dict] = []
+    log = LossLog(settings.log_every, settings.steps)
     counts = {"noise": 0, "loo": 0}
-    start, running = 0, 0.0
+    start = 0
     fp = settings.fingerprint(fingerprint_extra)
-    if checkpoint_dir is not None:
-        found = _newest(Path(checkpoint_dir), fp)
+    ckpts = _checkpoints(checkpoint_dir, settings.checkpoint_every)
+    if ckpts is not None:
+        found = ckpts.newest_tensors(fp)
         if found is not None:
             tensors, meta = found
             model.load_state_dict(
@@ -139,12 +111,8 @@ def tune_compact(
             gen.set_state(tensors["torch_rng"])
             rng.bit_generator.state = meta["np_rng"]
             schedule.load_state(meta["schedule"])
-            losses, counts, start, running = (
-                meta["losses"],
-                meta["counts"],
-                int(meta["step"]),
-                meta["running"],
-            )
+            counts, start = meta["counts"], int(meta["step"])
+            log = LossLog(settings.log_every, settings.steps, meta["losses"], meta["running"])
     model.train()
     for step in range(start + 1, settings.steps + 1):
         pair = draw(rng, gen)
@@ -155,20 +123,10 @@ def tune_compact(
         loss.backward()
         opt.step()
         value = float(loss.detach())
-        running += value
-        every = max(settings.log_every, 1)
-        if step % every == 0 or step == settings.steps:
-            n = step % every or every
-            losses.append({"step": step, "loss": round(running / n, 6), "p_manual": round(schedule.p, 6)})
-            running = 0.0
+        log.add(step, value, p_manual=round(schedule.p, 6))
         if on_step is not None:
             on_step(step, value)
-        if (
-            checkpoint_dir is not None
-            and settings.checkpoint_every > 0
-            and step % settings.checkpoint_every == 0
-            and step < settings.steps
-        ):
+        if ckpts is not None and ckpts.due(step, settings.steps):
             tensors = {f"model.{k}": v for k, v in model.state_dict().items()}
             for i, n in enumerate(names):
                 st = opt.state[params[i]]
@@ -176,17 +134,14 @@ def tune_compact(
                 tensors[f"adam.{n}.exp_avg_sq"] = st["exp_avg_sq"]
             tensors["torch_rng"] = gen.get_state()
             meta = {
-                "format": CKPT_FORMAT,
-                "fingerprint": fp,
-                "step": step,
                 "adam_step": step,
                 "np_rng": rng.bit_generator.state,
                 "schedule": schedule.state(),
-                "losses": losses,
+                "losses": log.entries,
                 "counts": counts,
-                "running": running,
+                "running": log.running,
             }
-            _save(Path(checkpoint_dir), tensors, meta, step)
+            ckpts.save_tensors(step, fp, tensors, meta)
     if settings.method == "lora":
         from go_core.compact.lora import merge_conv_lora
 
@@ -194,7 +149,7 @@ def tune_compact(
     model.eval()
     return {
         "steps": settings.steps,
-        "loss_log": losses,
+        "loss_log": log.entries,
         "pairs_used": counts,
         "p_manual_final": schedule.p,
         "resumed_from": start,

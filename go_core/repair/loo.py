@@ -62,7 +62,8 @@ def run_one(
 ) -> LooRun:
     """Run (or resume, or just load) the leave-one-out run for view ``index``. ``on_progress(step, info)``
     after each iteration, counting phase 1 then phase 2 (``optimize``'s info: loss, n, ...)."""
-    from go_core.coarse.loop import CheckpointSpec, NoDensify, optimize
+    from go_core.coarse.loop import NoDensify, optimize
+    from go_core.io.checkpoint import CheckpointSpec
 
     run_dir = Path(run_dir)
     done = run_dir / "done.json"

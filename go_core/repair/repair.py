@@ -187,7 +187,8 @@ def repair_gaussians(
 
     The summary depends only on the inputs (identical after a resume); the run facts (resume point, refreshes
     computed in this process, L_rep log) describe this particular process."""
-    from go_core.coarse.loop import CheckpointSpec, optimize
+    from go_core.coarse.loop import optimize
+    from go_core.io.checkpoint import CheckpointSpec
 
     arcs = RepairArcs.from_cameras([v.camera for v in views], keep=settings.keep)
     sh = coarse.sh_degree

@@ -9,8 +9,6 @@ tensors only. Checkpoints (LoRA tensors, optimiser, both RNG states, pair schedu
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -19,10 +17,11 @@ import torch
 
 from go_core.diffusion.lora import LoraSpec, load_lora_state_dict, lora_parameters, lora_state_dict
 from go_core.diffusion.sampler import RepairDiffusion
+from go_core.io.checkpoint import Checkpoints, CheckpointSpec, LossLog, fingerprint_of
 from go_core.repair.pairs import PairSource, pair_tensors
 from go_core.seeding import numpy_rng, torch_generator
 
-CKPT_FORMAT = 1
+CKPT = ("lora_step", 1)  # checkpoint file prefix and format
 
 
 @dataclass(frozen=True)
@@ -36,31 +35,11 @@ class TuneSettings:
     log_every: int = 10
 
     def fingerprint(self, spec: LoraSpec, extra: str = "") -> str:
-        blob = json.dumps({"s": asdict(self), "l": asdict(spec), "x": extra}, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+        return fingerprint_of({"s": asdict(self), "l": asdict(spec), "x": extra})
 
 
-def _newest(directory: Path, fingerprint: str) -> dict | None:
-    from go_core.io.checkpoint import try_load_checkpoint
-
-    if not directory.is_dir():
-        return None
-    for path in sorted(directory.glob("lora_step_*.pt"), reverse=True):
-        payload = try_load_checkpoint(path)  # tensors and plain containers only: never code
-        if not isinstance(payload, dict):
-            continue
-        if payload.get("format") == CKPT_FORMAT and payload.get("fingerprint") == fingerprint:
-            return payload
-    return None
-
-
-def _save(directory: Path, payload: dict, keep: int = 2) -> None:
-    from go_core.io.atomic import atomic_torch_save
-
-    directory.mkdir(parents=True, exist_ok=True)
-    atomic_torch_save(directory / f"lora_step_{payload['step']:07d}.pt", payload)
-    for old in sorted(directory.glob("lora_step_*.pt"))[:-keep]:
-        old.unlink(missing_ok=True)
+def _checkpoints(directory: Path | None, every: int) -> Checkpoints | None:
+    return None if directory is None else Checkpoints(CheckpointSpec(Path(directory), every, keep=2), *CKPT)
 
 
 def tune(
@@ -80,21 +59,20 @@ def tune(
     )
     gen = torch_generator(int(seed), "lora_noise")
     rng = numpy_rng(int(seed), "lora_batches")
-    losses: list[dict] = []
+    log = LossLog(settings.log_every, settings.steps)
     counts = {"noise": 0, "loo": 0}
     start = 0
-    running = 0.0
     fp = settings.fingerprint(spec, fingerprint_extra)
-    if checkpoint_dir is not None:
-        payload = _newest(Path(checkpoint_dir), fp)
-        if payload is not None:
-            load_lora_state_dict(diffusion.models, spec, payload["lora"])
-            opt.load_state_dict(payload["optimizer"])
-            gen.set_state(payload["torch_rng"])
-            rng.bit_generator.state = payload["np_rng"]
-            source.schedule.load_state(payload["schedule"])
-            losses, counts, start = payload["losses"], payload["counts"], int(payload["step"])
-            running = float(payload.get("running", 0.0))
+    ckpts = _checkpoints(checkpoint_dir, settings.checkpoint_every)
+    payload = ckpts.newest(fp) if ckpts is not None else None
+    if payload is not None:
+        load_lora_state_dict(diffusion.models, spec, payload["lora"])
+        opt.load_state_dict(payload["optimizer"])
+        gen.set_state(payload["torch_rng"])
+        rng.bit_generator.state = payload["np_rng"]
+        source.schedule.load_state(payload["schedule"])
+        counts, start = payload["counts"], int(payload["step"])
+        log = LossLog(settings.log_every, settings.steps, payload["losses"], float(payload["running"]))
     for m in ("unet", "controlnet", "text_encoder"):
         getattr(diffusion.models, m).train()
     for step in range(start + 1, settings.steps + 1):
@@ -106,42 +84,29 @@ def tune(
         loss.backward()
         opt.step()
         value = float(loss.detach())
-        running += value
-        if step % max(settings.log_every, 1) == 0 or step == settings.steps:
-            n = step % max(settings.log_every, 1) or max(settings.log_every, 1)
-            losses.append(
-                {"step": step, "loss": round(running / n, 6), "p_manual": round(source.schedule.p, 6)}
-            )
-            running = 0.0
+        log.add(step, value, p_manual=round(source.schedule.p, 6))
         if on_step is not None:
             on_step(step, value)
-        if (
-            checkpoint_dir is not None
-            and settings.checkpoint_every > 0
-            and step % settings.checkpoint_every == 0
-            and step < settings.steps
-        ):
-            _save(
-                Path(checkpoint_dir),
+        if ckpts is not None and ckpts.due(step, settings.steps):
+            ckpts.save(
+                step,
+                fp,
                 {
-                    "format": CKPT_FORMAT,
-                    "fingerprint": fp,
-                    "step": step,
                     "lora": lora_state_dict(diffusion.models, spec),
                     "optimizer": opt.state_dict(),
                     "torch_rng": gen.get_state(),
                     "np_rng": rng.bit_generator.state,
                     "schedule": source.schedule.state(),
-                    "losses": losses,
+                    "losses": log.entries,
                     "counts": counts,
-                    "running": running,
+                    "running": log.running,
                 },
             )
     for m in ("unet", "controlnet", "text_encoder"):
         getattr(diffusion.models, m).eval()
     return {
         "steps": settings.steps,
-        "loss_log": losses,
+        "loss_log": log.entries,
         "pairs_used": counts,
         "p_manual_final": source.schedule.p,
         "resumed_from": start,
