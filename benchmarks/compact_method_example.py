@@ -1,7 +1,7 @@
 """Full fine-tune vs LoRA (peft) for the compact repair model, on the built-in example (example profile).
 
-Each variant changes the `lora` step's settings only (the coarse model, leave-one-out and noise pairs are
-shared through the cache), then runs repair and eval; rows give test PSNR / SSIM / LPIPS*, the `lora` step's
+Each variant changes the `tune` step's settings only (the coarse model, leave-one-out and noise pairs are
+shared through the cache), then runs repair and eval; rows give test PSNR / SSIM / LPIPS*, the `tune` step's
 CPU seconds and the restorer's L1 on the leave-one-out pairs after tuning. Plus the "no repair" and
 "pretrained only" rows for reference.
 
@@ -20,11 +20,11 @@ from pathlib import Path
 
 VARIANTS = {
     "full (default)": {},
-    "lora r4": {"lora.compact_method": "lora", "lora.compact_rank": 4},
-    "lora r16": {"lora.compact_method": "lora", "lora.compact_rank": 16},
-    "lora r16 lr 1e-3": {"lora.compact_method": "lora", "lora.compact_rank": 16, "lora.compact_lr": 1e-3},
+    "lora r4": {"tune.compact_method": "lora", "tune.compact_rank": 4},
+    "lora r16": {"tune.compact_method": "lora", "tune.compact_rank": 16},
+    "lora r16 lr 1e-3": {"tune.compact_method": "lora", "tune.compact_rank": 16, "tune.compact_lr": 1e-3},
     "no repair": {"repair.mode": "no_repair"},
-    "pretrained only": {"lora.finetune": False},
+    "pretrained only": {"tune.finetune": False},
 }
 
 
@@ -47,11 +47,11 @@ def main() -> None:
             scene, workdir=args.workroot / "work", profile="example", overrides=sets, quiet=True
         )
         mean = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())["mean"]
-        lora = json.loads((summary.step("lora").artifact_dir / "manifest.json").read_text())
+        lora = json.loads((summary.step("tune").artifact_dir / "manifest.json").read_text())
         rows[tag] = {
             **{k: mean[k] for k in ("psnr", "ssim", "lpips_star")},
             "lora_cpu_s": lora.get("cpu_s"),
-            "loo_pairs_l1_after": summary.step("lora").record.get("loo_pairs_l1_after"),
+            "loo_pairs_l1_after": summary.step("tune").record.get("loo_pairs_l1_after"),
             "run_wall_s": round(time.perf_counter() - t0, 1),
         }
         print(tag, rows[tag], flush=True)

@@ -2,8 +2,8 @@
 
 Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared between the variants):
   full        default settings (weights.repair_model auto → the compact model here): coarse → loo →
-              noise_pairs → lora (per-scene tuning) → repair → eval
-  pretrained  ablation "pretrained only, no tuning": --set lora.finetune=false
+              noise_pairs → tune (per-scene tuning) → repair → eval
+  pretrained  ablation "pretrained only, no tuning": --set tune.finetune=false
   no_repair   ablation "no repair": --set repair.mode=no_repair (eval scores the coarse model)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, plus the wall and CPU
 seconds of every step from its manifest (the step's original run, also when cached here). Writes a JSON and
@@ -27,10 +27,10 @@ import numpy as np
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 VARIANTS = {
     "full": {},
-    "pretrained": {"lora.finetune": False},
+    "pretrained": {"tune.finetune": False},
     "no_repair": {"repair.mode": "no_repair"},
 }
-STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "lora", "repair", "eval")
+STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "eval")
 
 
 def _manifest(artifact_dir: Path) -> dict:
@@ -139,7 +139,7 @@ def main() -> None:
                 for step in STEPS:
                     m = _manifest(summary.step(step).artifact_dir)
                     entry["steps"][step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
-                entry["lora"] = summary.step("lora").record
+                entry["lora"] = summary.step("tune").record
                 entry["loo_pair_psnr"] = loo_pair_psnr(summary.step("loo").artifact_dir)
                 entry["repair"] = {
                     k: v for k, v in summary.step("repair").record.items() if k != "l_rep_last"

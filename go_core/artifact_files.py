@@ -41,7 +41,7 @@ LOO_INFO = Artifact("loo.json", "leave-one-out runs, 3D-noise statistics, pair i
 LOO_PAIRS = Artifact("loo_pairs.npz", "leave-one-out degraded / clean / mask images, uint8")
 NOISE_PAIRS_INFO = Artifact("noise_pairs.json", "noise-pair settings and statistics")
 NOISE_PAIRS_PREVIEW = Artifact("preview.png", "photo | render | noisy render for each training view")
-LORA_INFO = Artifact("lora.json", "LoRA tuning summary")
+TUNE_INFO = Artifact("tune.json", "the repair model's per-scene tuning: what was tuned, how, and its losses")
 LORA_WEIGHTS = Artifact("lora.safetensors", "the tuned LoRA tensors")
 COMPACT_WEIGHTS = Artifact("compact.safetensors", "the compact restorer fine-tuned on the scene")
 REPAIR_INFO = Artifact("repair.json", "repair summary; status ok means gaussians.npz is the repaired set")
@@ -75,7 +75,7 @@ __all__ = [
     "LOO_PAIRS",
     "NOISE_PAIRS_INFO",
     "NOISE_PAIRS_PREVIEW",
-    "LORA_INFO",
+    "TUNE_INFO",
     "LORA_WEIGHTS",
     "COMPACT_WEIGHTS",
     "REPAIR_INFO",

@@ -30,6 +30,11 @@ SCENE_INPUT = "@scene"  # the pseudo-input naming the scene folder itself (a ste
 _STEP_KEYS = {"function", "inputs", "outputs", "params", "description"}
 _TOP_KEYS = {"version", "steps", "profiles"}
 RESERVED_OUTPUTS = {"manifest.json"}
+# steps renamed since earlier versions: old name -> (new name, why); an old name in --set, --until, --force, a
+# profile or a work dir's remembered params gets one line naming the new one
+RENAMED_STEPS = {
+    "lora": ("tune", "it tunes the repair model: LoRA for sd15, a full fine-tune for the compact model"),
+}
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,12 @@ class Pipeline:
     def require_step(self, name: str, what: str, from_file: bool = True) -> StepSpec:
         """The step called ``name``; else an error about ``what`` (a pipeline.yaml entry, or with
         ``from_file=False`` a command-line argument, whose message then names no file)."""
+        if name not in self.steps and name in RENAMED_STEPS and RENAMED_STEPS[name][0] in self.steps:
+            new, why = RENAMED_STEPS[name]
+            raise PipelineError(
+                f"{what}: step {name!r} is now called {new!r} ({why}): write {new} instead of {name}",
+                self.path if from_file else None,
+            )
         if name not in self.steps:
             raise PipelineError(
                 f"{what}: unknown step {name!r} (steps: {', '.join(self.steps)})",

@@ -1,6 +1,6 @@
 """noise_pairs: the 3D-noise configuration for repair-model tuning, and a preview of noise pairs.
 
-Noise pairs are generated on the fly during the ``lora`` step (Algorithm 1: with probability p_manual a
+Noise pairs are generated on the fly during the ``tune`` step (Algorithm 1: with probability p_manual a
 fresh render of the coarse model with 3D noise on position, scale, rotation and opacity, never SH, drawn
 from the leave-one-out statistics; p_manual starts at ``p0`` and is multiplied by ``decay`` per noise pair
 used). This step fixes that configuration in ``noise_pairs.json`` (statistics, schedule, noise scale) and

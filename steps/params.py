@@ -122,7 +122,7 @@ class NoisePairsParams:
 
 
 @dataclass
-class LoraParams:
+class TuneParams:
     finetune: bool = setting(True, doc="false: no fine-tuning ablation (pretrained ControlNet only)")
     prompt: str = "a photo of xxy5syt00"
     rank: int = setting(64, ge=1, doc="LoRA rank on UNet + ControlNet transformer blocks and CLIP attention")

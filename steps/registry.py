@@ -50,9 +50,9 @@ STEPS: dict[str, StepDeclaration] = {
     "go_pipeline.steps.noise_pairs": StepDeclaration(
         p.NoisePairsParams, (art.NOISE_PAIRS_INFO,), (art.NOISE_PAIRS_PREVIEW,), skip_if_skipped=("weights",)
     ),
-    "go_pipeline.steps.lora": StepDeclaration(
-        p.LoraParams,
-        (art.LORA_INFO,),
+    "go_pipeline.steps.tune": StepDeclaration(
+        p.TuneParams,
+        (art.TUNE_INFO,),
         (art.LORA_WEIGHTS, art.COMPACT_WEIGHTS),  # sd15 / compact, when it tuned
         skip_if_skipped=("weights",),
     ),
@@ -60,7 +60,7 @@ STEPS: dict[str, StepDeclaration] = {
         p.RepairParams,
         (art.REPAIR_INFO,),
         (art.GAUSSIANS, art.CURVES, art.REPAIR_PREVIEW),  # when it repaired (status ok)
-        skip_if_skipped=("lora",),
+        skip_if_skipped=("tune",),
     ),
     "go_pipeline.steps.export": StepDeclaration(p.ExportParams, (art.POINT_CLOUD,)),
     "go_pipeline.steps.turntable": StepDeclaration(

@@ -7,13 +7,13 @@ drawn from the middle 80% of the arcs between reference views on the ellipse of 
 authors' densification schedule (every 100 from 400 to 3600, opacity reset every 500, prune below 0.02).
 
 Skips honestly (``repair.json`` ``{"status": "skipped", "reason": ...}``, no ``gaussians.npz``; downstream
-steps then use the coarse model) when the lora step had no weights, or for the "no repair" ablation
+steps then use the coarse model) when the tune step had no weights, or for the "no repair" ablation
 (``mode: no_repair``). ``use_lora: false`` is the "no fine-tuning" ablation (pretrained ControlNet only);
 ``loss: sds`` replaces L_rep by score distillation on the same paths (the "SDS" ablation row).
 The LPIPS term uses go_core.metrics' LPIPS (``lpips_net``) when its weights are installed, else it is off
 and ``repair.json`` says so.
 
-With the compact repair model (``lora.json`` ``"repair_model": "compact"``): the tuned restorer from the lora
+With the compact repair model (``tune.json`` ``"repair_model": "compact"``): the tuned restorer from the tune
 step (``compact.safetensors``; the pretrained one with ``use_lora: false`` or after ``finetune: false``)
 repairs each novel view in one pass at ``compact_resolution``; the SDEdit strength t becomes a blend
 strength b ~ U(``strength_range``) with w = b (go_core.repair.repair). ``loss: sds`` needs sd15.
@@ -38,17 +38,17 @@ if TYPE_CHECKING:
     from go_pipeline.steps.params import RepairParams
 
 
-def _compact_engine(inputs: dict[str, Path], lora_info: dict, use_lora: bool, device: str):
-    """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the lora step's artifact."""
+def _compact_engine(inputs: dict[str, Path], tune_info: dict, use_lora: bool, device: str):
+    """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the tune step's artifact."""
     from safetensors.torch import load_file
 
     from go_core.compact.engine import CompactRepair
     from go_core.compact.restorer import CompactRestorer
 
-    restorer = CompactRestorer.load(lora_info["compact"]["name"])  # one clear error when absent/corrupt
-    tuned = use_lora and lora_info.get("status") == "ok"
+    restorer = CompactRestorer.load(tune_info["compact"]["name"])  # one clear error when absent/corrupt
+    tuned = use_lora and tune_info.get("status") == "ok"
     if tuned:
-        restorer.net.load_ncnn_tensors(load_file(str(Path(inputs["lora"]) / lora_info["tuned"])))
+        restorer.net.load_ncnn_tensors(load_file(str(Path(inputs["tune"]) / tune_info["tuned"])))
     return CompactRepair(restorer, device), "fine-tuned" if tuned else "pretrained (no fine-tuning)"
 
 
@@ -99,14 +99,14 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     if mode == "no_repair":
         write_skipped(ctx, art.REPAIR_INFO, "ablation: no repair (mode no_repair)")
         return
-    lora_info = art.read_json(inputs["lora"], art.LORA_INFO)  # a skipped lora step skips this one (registry)
+    tune_info = art.read_json(inputs["tune"], art.TUNE_INFO)  # a skipped tune step skips this one (registry)
     device = str(ctx.device)
-    repair_model = str(lora_info.get("repair_model", "sd15"))
+    repair_model = str(tune_info.get("repair_model", "sd15"))
     settings = params  # RepairSettings with the coarse step's settings (params.coarse)
     if repair_model == "compact":
         if settings.loss == "sds":
             raise GoError("repair.loss 'sds' needs the sd15 repair model (weights.repair_model)")
-        diffusion, lora_note = _compact_engine(inputs, lora_info, params.use_lora, device)
+        diffusion, lora_note = _compact_engine(inputs, tune_info, params.use_lora, device)
         res = params.compact_resolution
         if res % diffusion.restorer.scale:
             raise GoError(
@@ -114,19 +114,19 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
             )
         settings = replace(settings, resolution=res, lpips=params.compact_lpips)
     else:
-        paths = WeightPaths(**lora_info["weights"])
+        paths = WeightPaths(**tune_info["weights"])
         weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
         models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
-        use_lora = params.use_lora and lora_info.get("status") == "ok"
+        use_lora = params.use_lora and tune_info.get("status") == "ok"
         if use_lora:
-            spec, state = read_lora(Path(inputs["lora"]) / lora_info["lora"])
+            spec, state = read_lora(Path(inputs["tune"]) / tune_info["lora"])
             add_lora(models, spec)
             load_lora_state_dict(models, spec, state)
             for m in models.modules().values():
                 m.to(device)
         diffusion = RepairDiffusion(
             models,
-            prompt=str(lora_info.get("prompt", "a photo of xxy5syt00")),
+            prompt=str(tune_info.get("prompt", "a photo of xxy5syt00")),
             device=device,
             autocast_dtype=autocast_dtype,
             guidance_scale=params.guidance_scale,
@@ -164,7 +164,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         "mode": mode,
         "loss": settings.loss,
         "repair_model": repair_model,
-        "compact_model": lora_info["compact"]["name"] if repair_model == "compact" else "",
+        "compact_model": tune_info["compact"]["name"] if repair_model == "compact" else "",
         "lora": lora_note,
         "lpips_term": lpips_note,
         "device": device,

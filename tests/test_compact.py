@@ -1,4 +1,4 @@
-"""The compact repair model: ncnn parity, weights errors, per-scene tuning, resumable lora/repair steps."""
+"""The compact repair model: ncnn parity, weights errors, per-scene tuning, resumable tune/repair steps."""
 
 from __future__ import annotations
 
@@ -57,12 +57,12 @@ def upstream(tmp_path_factory):
     return root, dirs
 
 
-def _lora(root: Path, dirs: dict, params: dict) -> FakeCtx:
-    from go_pipeline.steps import lora
+def _tune(root: Path, dirs: dict, params: dict) -> FakeCtx:
+    from go_pipeline.steps import tune
 
     weights = run_weights_step(root / "weights", COMPACT)
-    ctx = FakeCtx(root, "lora")
-    lora.run(ctx, {**dirs, "weights": weights}, step_params(lora.__name__, params))
+    ctx = FakeCtx(root, "tune")
+    tune.run(ctx, {**dirs, "weights": weights}, step_params(tune.__name__, params))
     return ctx
 
 
@@ -70,7 +70,7 @@ def _repair(root: Path, dirs: dict, lora_dir: Path, params: dict) -> FakeCtx:
     from go_pipeline.steps import repair
 
     ctx = FakeCtx(root, "repair")
-    repair.run(ctx, {**dirs, "lora": lora_dir}, step_params(repair.__name__, params))
+    repair.run(ctx, {**dirs, "tune": lora_dir}, step_params(repair.__name__, params))
     return ctx
 
 
@@ -180,8 +180,8 @@ def test_tuning_lowers_the_loss_on_held_back_pairs(upstream, tmp_path, tiny_cach
     """Tuned on noise pairs only, the restorer's L1 on the (never seen) leave-one-out pairs drops."""
     root, dirs = upstream
     params = {**LORA, "compact_steps": 40, "checkpoint_every": 0, "use_loo_pairs": False}
-    ctx = _lora(tmp_path, dirs, {**params, "compact_method": method})
-    held = json.loads((ctx.out_dir / "lora.json").read_text())["loo_pairs_l1"]
+    ctx = _tune(tmp_path, dirs, {**params, "compact_method": method})
+    held = json.loads((ctx.out_dir / "tune.json").read_text())["loo_pairs_l1"]
     assert held["pairs"] >= 4
     assert held["after"] < 0.95 * held["before"], held
 
@@ -194,7 +194,7 @@ def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tin
 
     root, dirs = upstream
     params = {**LORA, "compact_method": method}
-    full = _lora(tmp_path / "a", dirs, params)
+    full = _tune(tmp_path / "a", dirs, params)
     original, saved = tuning._save, []
 
     def save_then_die(directory, tensors, meta, step, keep=2):
@@ -205,15 +205,15 @@ def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tin
 
     monkeypatch.setattr(tuning, "_save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        _lora(tmp_path / "b", dirs, params)
+        _tune(tmp_path / "b", dirs, params)
     assert saved == [2, 4]
     monkeypatch.setattr(tuning, "_save", original)
-    resumed = _lora(tmp_path / "b", dirs, params)
+    resumed = _tune(tmp_path / "b", dirs, params)
     assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
     a = load_file(str(full.out_dir / "compact.safetensors"))
     b = load_file(str(resumed.out_dir / "compact.safetensors"))
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
-    assert (full.out_dir / "lora.json").read_bytes() == (resumed.out_dir / "lora.json").read_bytes()
+    assert (full.out_dir / "tune.json").read_bytes() == (resumed.out_dir / "tune.json").read_bytes()
     first = load_file(str(tiny_cache / "compact" / "realesr-animevideov3-x4.safetensors"))
     assert any(not torch.equal(first[k], a[k]) for k in a)  # tuning moved the weights
 
@@ -258,7 +258,7 @@ def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
     from go_core.io.checkpoint import Checkpoints
 
     root, dirs = upstream
-    lora_ctx = _lora(tmp_path / "l", dirs, LORA)
+    lora_ctx = _tune(tmp_path / "l", dirs, LORA)
     full = _repair(tmp_path / "a", dirs, lora_ctx.out_dir, REPAIR)
     info = json.loads((full.out_dir / "repair.json").read_text())
     assert info["status"] == "ok" and info["repair_model"] == "compact" and info["lora"] == "fine-tuned"
@@ -291,8 +291,8 @@ def test_pretrained_ablation_and_sds_refusal(upstream, tmp_path, tiny_cache):
     from go_core.errors import GoError
 
     root, dirs = upstream
-    ctx = _lora(tmp_path / "p", dirs, {**LORA, "finetune": False})
-    info = json.loads((ctx.out_dir / "lora.json").read_text())
+    ctx = _tune(tmp_path / "p", dirs, {**LORA, "finetune": False})
+    info = json.loads((ctx.out_dir / "tune.json").read_text())
     assert info["status"] == "pretrained" and info["repair_model"] == "compact"
     rep = _repair(tmp_path / "r", dirs, ctx.out_dir, REPAIR)
     assert json.loads((rep.out_dir / "repair.json").read_text())["lora"] == "pretrained (no fine-tuning)"

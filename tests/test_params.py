@@ -67,7 +67,7 @@ def test_steps_have_no_fallback_defaults_or_rename_tables():
         ({"coarse.lambda_mask": float("nan")}, "--set coarse.lambda_mask=nan: must be a finite number"),
         ({"coarse.floater_schedule": "cosine"}, "--set coarse.floater_schedule='cosine': must be one of 'code' | 'paper', got 'cosine'"),  # noqa: E501
         ({"hull.init": "cube"}, "--set hull.init='cube': must be one of 'hull' | 'random', got 'cube'"),
-        ({"lora.resolution": 100}, "--set lora.resolution=100: must be a multiple of 64, got 100"),
+        ({"tune.resolution": 100}, "--set tune.resolution=100: must be a multiple of 64, got 100"),
         ({"turntable.background": [1, 1]}, "--set turntable.background=[1, 1]: expected 3 values, got 2"),
         ({"turntable.background": [1, 1, 2]}, "--set turntable.background=[1, 1, 2]: must be <= 1, got 2.0"),
         ({"eval.lpips_nets": ["vgg", "squeeze"]}, "--set eval.lpips_nets=['vgg', 'squeeze']: must be one of 'vgg' | 'alex', got 'squeeze'"),  # noqa: E501
@@ -87,11 +87,11 @@ def test_bad_set_values_are_one_clear_error(pipeline, overrides, message):
 
 def test_good_set_values_are_converted(pipeline):
     p = pipeline.resolve_params(
-        overrides={"coarse.lambda_mask": 1, "lora.betas": [0.5, 0.9], "coarse.position_lr_init": "1e-3"}
+        overrides={"coarse.lambda_mask": 1, "tune.betas": [0.5, 0.9], "coarse.position_lr_init": "1e-3"}
     )
     assert p["coarse"]["lambda_mask"] == 1.0 and isinstance(p["coarse"]["lambda_mask"], float)
     assert p["coarse"]["position_lr_init"] == 0.001
-    assert step_params("go_pipeline.steps.lora", p["lora"]).betas == (0.5, 0.9)
+    assert step_params("go_pipeline.steps.tune", p["tune"]).betas == (0.5, 0.9)
 
 
 def test_profiles_are_checked_against_the_class(tmp_path):

@@ -275,3 +275,15 @@ def test_bad_set_syntax():
     with pytest.raises(PipelineError) as info:
         parse_set_argument("a.b=[1, 2")
     assert str(info.value).startswith("--set a.b=[1, 2: value is not valid YAML (")
+
+
+def test_a_renamed_step_gets_one_line_naming_the_new_name():
+    """The `lora` step is `tune` now: an old --set, --until or remembered override says so, once."""
+    p = load_pipeline()
+    with pytest.raises(PipelineError) as info:
+        p.resolve_params(None, {"lora.steps": 3})
+    assert str(info.value).startswith("--set lora.steps=3: step 'lora' is now called 'tune' (")
+    assert str(info.value).endswith("write tune instead of lora")
+    with pytest.raises(PipelineError, match=r"^--until: step 'lora' is now called 'tune'"):
+        p.require_step("lora", "--until", from_file=False)
+    assert p.resolve_params(None, {"tune.steps": 3})["tune"]["steps"] == 3

@@ -27,9 +27,9 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     with_weights["weights.repair_model"] = "sd15"
     summary = run_pipeline(EXAMPLE, workdir=work, profile="test", overrides=with_weights, quiet=True)
     steps = {s.name: s for s in summary.steps}
-    for name in ("loo", "noise_pairs", "lora", "repair", "eval"):
+    for name in ("loo", "noise_pairs", "tune", "repair", "eval"):
         assert steps[name].status == "ran", name
-    assert steps["lora"].record["status"] == "ok" and steps["repair"].record["status"] == "ok"
+    assert steps["tune"].record["status"] == "ok" and steps["repair"].record["status"] == "ok"
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
     assert metrics["model"] == "repair"
     assert (steps["repair"].artifact_dir / "gaussians.npz").is_file()
@@ -42,7 +42,7 @@ def test_example_runs_through_eval_with_tiny_models_and_falls_back_without(tmp_p
     steps = {s.name: s for s in summary.steps}
     assert steps["coarse"].status == "cached"
     assert "Stable Diffusion 1.5" in steps["weights"].record["reason"]  # the long message: once
-    for name in ("loo", "noise_pairs", "lora", "repair"):  # skipped by the runner, without a worker
+    for name in ("loo", "noise_pairs", "tune", "repair"):  # skipped by the runner, without a worker
         assert steps[name].status == "skipped", name
         assert steps[name].record["reason"] == "repair model weights missing (see the weights step)", name
     assert not (steps["repair"].artifact_dir / "gaussians.npz").exists()
@@ -62,7 +62,7 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
         monkeypatch.delenv(var, raising=False)
     summary = run_pipeline(EXAMPLE, workdir=tmp_path / "work", profile="test", quiet=True)
     steps = {s.name: s for s in summary.steps}
-    for name in ("loo", "noise_pairs", "lora", "repair", "eval"):
+    for name in ("loo", "noise_pairs", "tune", "repair", "eval"):
         assert steps[name].status == "ran", name
     assert steps["repair"].record["repair_model"] == "compact"
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
@@ -84,7 +84,7 @@ def test_refined_poses_flow_through_the_chain_and_eval_scores_them_as_cf(tmp_pat
     work = tmp_path / "work"
     summary = run_pipeline(EXAMPLE, workdir=work, profile="test", overrides=overrides, quiet=True)
     steps = {s.name: s for s in summary.steps}
-    for name in ("coarse", "loo", "noise_pairs", "lora", "repair", "eval"):
+    for name in ("coarse", "loo", "noise_pairs", "tune", "repair", "eval"):
         assert steps[name].status == "ran", name
     cameras = json.loads((steps["coarse"].artifact_dir / "cameras.json").read_text())
     assert cameras["refined"] and cameras["cameras"][0]["rotation_change_deg"] == 0.0  # the gauge

@@ -1,4 +1,4 @@
-"""noise_pairs → lora → repair steps end to end with tiny random models; honest skips without weights."""
+"""noise_pairs → tune → repair steps end to end with tiny random models; honest skips without weights."""
 
 from __future__ import annotations
 
@@ -58,16 +58,16 @@ def upstream(tmp_path_factory):
     return root, dirs, weights
 
 
-def _lora(root, dirs, params, name="lora"):
-    """The weights step on the weight paths in ``params``, then the lora step on the rest."""
-    from go_pipeline.steps import lora
+def _tune(root, dirs, params, name="tune"):
+    """The weights step on the weight paths in ``params``, then the tune step on the rest."""
+    from go_pipeline.steps import tune
 
     weights = run_weights_step(root / f"{name}_weights", params)
     ctx = FakeCtx(root, name)
-    lora.run(
+    tune.run(
         ctx,
         {**dirs, "weights": weights},
-        step_params(lora.__name__, {k: v for k, v in params.items() if k not in WEIGHT_KEYS}),
+        step_params(tune.__name__, {k: v for k, v in params.items() if k not in WEIGHT_KEYS}),
     )
     return ctx
 
@@ -86,13 +86,13 @@ def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_pat
     from go_pipeline.steps import repair
 
     _, dirs, _ = upstream
-    ctx = _lora(tmp_path, dirs, {})
-    info = json.loads((ctx.out_dir / "lora.json").read_text())
+    ctx = _tune(tmp_path, dirs, {})
+    info = json.loads((ctx.out_dir / "tune.json").read_text())
     assert info["status"] == "skipped" and ctx.records["status"] == "skipped"
     assert "Stable Diffusion 1.5" in info["reason"] and "GO_SD15_PATH" in info["reason"]
-    assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["lora.json"]
+    assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["tune.json"]
     rctx = FakeCtx(tmp_path, "repair")
-    repair.run(rctx, {**dirs, "lora": ctx.out_dir}, step_params(repair.__name__, REPAIR))
+    repair.run(rctx, {**dirs, "tune": ctx.out_dir}, step_params(repair.__name__, REPAIR))
     rinfo = json.loads((rctx.out_dir / "repair.json").read_text())
     assert rinfo["status"] == "skipped" and "Stable Diffusion 1.5" in rinfo["reason"]
     assert not (rctx.out_dir / "gaussians.npz").exists()
@@ -105,7 +105,7 @@ def test_configured_but_wrong_weights_raise_one_clear_error(upstream, tmp_path):
 
     _, dirs, weights = upstream
     with pytest.raises(MissingWeightsError) as err:
-        _lora(tmp_path, dirs, {**weights, "controlnet_path": str(tmp_path / "typo")})
+        _tune(tmp_path, dirs, {**weights, "controlnet_path": str(tmp_path / "typo")})
     assert str(tmp_path / "typo") in str(err.value) and "control_v11f1e_sd15_tile" in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -116,7 +116,7 @@ def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monke
 
     root, dirs, weights = upstream
     params = {**weights, **LORA}
-    full = _lora(tmp_path / "a", dirs, params)
+    full = _tune(tmp_path / "a", dirs, params)
     saved = []
     original = tuning._save
 
@@ -128,16 +128,16 @@ def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monke
 
     monkeypatch.setattr(tuning, "_save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        _lora(tmp_path / "b", dirs, params)
+        _tune(tmp_path / "b", dirs, params)
     assert saved == [2, 4]
     monkeypatch.setattr(tuning, "_save", original)
-    resumed = _lora(tmp_path / "b", dirs, params)
+    resumed = _tune(tmp_path / "b", dirs, params)
     assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
     _, a = read_lora(full.out_dir / "lora.safetensors")
     _, b = read_lora(resumed.out_dir / "lora.safetensors")
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
-    assert (full.out_dir / "lora.json").read_bytes() == (resumed.out_dir / "lora.json").read_bytes()
-    info = json.loads((full.out_dir / "lora.json").read_text())
+    assert (full.out_dir / "tune.json").read_bytes() == (resumed.out_dir / "tune.json").read_bytes()
+    info = json.loads((full.out_dir / "tune.json").read_text())
     assert info["status"] == "ok" and info["pairs_used"]["noise"] + info["pairs_used"]["loo"] == 6
     assert any(float(v.abs().max()) > 0 for k, v in a.items() if "lora_B" in k)  # LoRA moved from zero
 
@@ -150,9 +150,9 @@ def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
     from go_pipeline.steps import repair
 
     _, dirs, weights = upstream
-    lctx = _lora(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})
+    lctx = _tune(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})
     ctx = FakeCtx(tmp_path, "repair")
-    repair.run(ctx, {**dirs, "lora": lctx.out_dir}, step_params(repair.__name__, REPAIR))
+    repair.run(ctx, {**dirs, "tune": lctx.out_dir}, step_params(repair.__name__, REPAIR))
     info = json.loads((ctx.out_dir / "repair.json").read_text())
     assert info["status"] == "ok" and info["lora"] == "fine-tuned" and info["lpips_term"] == "off (weight 0)"
     assert info["refreshes"] == 2 and ctx.records["refreshes_made"] == 2
@@ -189,26 +189,26 @@ def test_ablations_no_finetune_and_no_repair(upstream, tmp_path):
     from go_pipeline.steps import repair
 
     _, dirs, weights = upstream
-    lctx = _lora(tmp_path, dirs, {**weights, **LORA, "finetune": False})
-    linfo = json.loads((lctx.out_dir / "lora.json").read_text())
+    lctx = _tune(tmp_path, dirs, {**weights, **LORA, "finetune": False})
+    linfo = json.loads((lctx.out_dir / "tune.json").read_text())
     assert linfo["status"] == "pretrained" and not (lctx.out_dir / "lora.safetensors").exists()
     ctx = FakeCtx(tmp_path, "repair")
     repair.run(
         ctx,
-        {**dirs, "lora": lctx.out_dir},
+        {**dirs, "tune": lctx.out_dir},
         step_params(repair.__name__, {**REPAIR, "iterations": 3, "repair_iterations": 2}),
     )
     assert json.loads((ctx.out_dir / "repair.json").read_text())["lora"] == "pretrained (no fine-tuning)"
     ctx = FakeCtx(tmp_path, "repair_sds")
     repair.run(
         ctx,
-        {**dirs, "lora": lctx.out_dir},
+        {**dirs, "tune": lctx.out_dir},
         step_params(repair.__name__, {**REPAIR, "iterations": 3, "repair_iterations": 2, "loss": "sds"}),
     )
     assert json.loads((ctx.out_dir / "repair.json").read_text())["loss"] == "sds"
     ctx = FakeCtx(tmp_path, "repair_none")
     repair.run(
-        ctx, {**dirs, "lora": lctx.out_dir}, step_params(repair.__name__, {**REPAIR, "mode": "no_repair"})
+        ctx, {**dirs, "tune": lctx.out_dir}, step_params(repair.__name__, {**REPAIR, "mode": "no_repair"})
     )
     info = json.loads((ctx.out_dir / "repair.json").read_text())
     assert info["status"] == "skipped" and "no repair" in info["reason"]

@@ -1,4 +1,4 @@
-"""lora: fine-tune the repair model (SD1.5 + ControlNet-tile + CLIP) with LoRA on self-generated pairs.
+"""tune: fine-tune the repair model on the scene's self-generated pairs (SD1.5: LoRA).
 
 LoRA rank 64 (peft) on the UNet's and the ControlNet's transformer blocks and the CLIP text encoder's
 attention; AdamW lr 1e-3, β (0.9, 0.999), 1800 steps, batch 1, prompt "a photo of xxy5syt00"; ε-prediction
@@ -8,13 +8,13 @@ every ``checkpoint_every`` steps; a killed step resumes from the newest one.
 
 Weights come from the ``weights`` step (local paths from its params or $GO_SD15_PATH /
 $GO_CONTROLNET_TILE_PATH / $GO_CLIP_PATH / $GO_SD15_CONFIG). When none is configured the runner skips the
-step (steps/registry.py): ``lora.json`` says ``{"status": "skipped", "reason": ...}`` and the repair step (and
+step (steps/registry.py): ``tune.json`` says ``{"status": "skipped", "reason": ...}`` and the repair step (and
 so the report) falls back to the coarse model. Paths given but wrong already failed in the weights step
 (MissingWeightsError); files that exist but cannot be loaded raise here.
 ``finetune: false`` is the "no fine-tuning" ablation: ``status: "pretrained"`` (the repair step then uses the
 pretrained ControlNet without LoRA).
 
-Outputs: ``lora.json``; with status ok also ``lora.safetensors`` (only the LoRA tensors).
+Outputs: ``tune.json``; with status ok also ``lora.safetensors`` (only the LoRA tensors).
 
 With the compact repair model (``weights.repair_model``): a full fine-tune of the pretrained restorer on the
 same Algorithm-1 pairs (go_core.compact.tuning: L1, Adam ``compact_lr``, ``compact_steps`` steps at
@@ -32,10 +32,10 @@ from go_core import artifacts as art
 from go_pipeline.steps.weights import compact_info, repair_model, weight_paths
 
 if TYPE_CHECKING:
-    from go_pipeline.steps.params import LoraParams
+    from go_pipeline.steps.params import TuneParams
 
 
-def _pair_source(inputs: dict[str, Path], params: LoraParams, views):
+def _pair_source(inputs: dict[str, Path], params: TuneParams, views):
     """Algorithm 1's pair source over the coarse model, the noise statistics and the leave-one-out pairs."""
     from go_core.repair.noise import NoiseStats
     from go_core.repair.pairs import LooPairs, PairSource
@@ -55,7 +55,7 @@ def _pair_source(inputs: dict[str, Path], params: LoraParams, views):
     )
 
 
-def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
+def _run_compact(ctx, inputs: dict[str, Path], params: TuneParams) -> None:
     """Per-scene full fine-tune of the compact restorer (see the module docstring)."""
     from go_core.compact.restorer import CompactRestorer
     from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
@@ -69,7 +69,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     if not params.finetune:
         art.write_json(
             ctx.out_dir,
-            art.LORA_INFO,
+            art.TUNE_INFO,
             {**base, "status": "pretrained", "reason": "ablation: no fine-tuning (pretrained restorer only)"},
         )
         ctx.record(status="pretrained", repair_model="compact", reason="ablation: no fine-tuning")
@@ -85,7 +85,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     )
     if settings.resolution % model.scale:
         raise ValueError(
-            f"lora.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"
+            f"tune.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"
         )
     _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     source = _pair_source(inputs, params, views)
@@ -121,7 +121,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
         "loo_pairs_l1": {"before": round(before, 6), "after": round(after, 6), "pairs": len(loo_pairs)},
         **summary,
     }
-    art.write_json(ctx.out_dir, art.LORA_INFO, out)
+    art.write_json(ctx.out_dir, art.TUNE_INFO, out)
     log = summary["loss_log"]
     ctx.record(
         status="ok", repair_model="compact", steps=settings.steps, resumed_from=resumed_from,
@@ -131,7 +131,7 @@ def _run_compact(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     )  # fmt: skip
 
 
-def run(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
+def run(ctx, inputs: dict[str, Path], params: TuneParams) -> None:
 
     from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
     from go_core.diffusion.models import load_repair_models, precision_dtypes
@@ -148,7 +148,7 @@ def run(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
     if not params.finetune:
         art.write_json(
             ctx.out_dir,
-            art.LORA_INFO,
+            art.TUNE_INFO,
             {
                 "status": "pretrained",
                 "reason": "ablation: no fine-tuning (pretrained ControlNet only)",
@@ -216,7 +216,7 @@ def run(ctx, inputs: dict[str, Path], params: LoraParams) -> None:
         "precision": str(weight_dtype).replace("torch.", ""),
         **summary,
     }
-    art.write_json(ctx.out_dir, art.LORA_INFO, info)
+    art.write_json(ctx.out_dir, art.TUNE_INFO, info)
     log = summary["loss_log"]
     ctx.record(
         status="ok",
