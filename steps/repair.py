@@ -24,7 +24,6 @@ for the last refresh's views).
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,24 +31,11 @@ from go_core import artifacts as art
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write
 from go_core.io.curves import write_curves
-from go_pipeline.steps._common import write_skipped
+from go_pipeline.steps._common import ResumedProgress, write_skipped
+from go_pipeline.steps._repair_models import repair_model_named
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import RepairParams
-
-
-def _compact_engine(inputs: dict[str, Path], tune_info: dict, use_lora: bool, device: str):
-    """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the tune step's artifact."""
-    from safetensors.torch import load_file
-
-    from go_core.compact.engine import CompactRepair
-    from go_core.compact.restorer import CompactRestorer
-
-    restorer = CompactRestorer.load(tune_info["compact"]["name"])  # one clear error when absent/corrupt
-    tuned = use_lora and tune_info.get("status") == "ok"
-    if tuned:
-        restorer.net.load_ncnn_tensors(load_file(str(Path(inputs["tune"]) / tune_info["tuned"])))
-    return CompactRepair(restorer, device), "fine-tuned" if tuned else "pretrained (no fine-tuning)"
 
 
 def _lpips(net: str, weight: float):
@@ -85,13 +71,6 @@ def _preview(path: Path, cache, size: int = 128) -> None:
 
 def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
 
-    from go_core.diffusion.lora import add_lora, load_lora_state_dict, read_lora
-    from go_core.diffusion.models import (
-        WeightPaths,
-        load_repair_models,
-        precision_dtypes,
-    )
-    from go_core.diffusion.sampler import RepairDiffusion
     from go_core.repair.data import training_views
     from go_core.repair.repair import repair_gaussians
 
@@ -102,46 +81,12 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     tune_info = art.read_json(inputs["tune"], art.TUNE_INFO)  # a skipped tune step skips this one (registry)
     device = str(ctx.device)
     repair_model = str(tune_info.get("repair_model", "sd15"))
-    settings = params  # RepairSettings with the coarse step's settings (params.coarse)
-    if repair_model == "compact":
-        if settings.loss == "sds":
-            raise GoError("repair.loss 'sds' needs the sd15 repair model (weights.repair_model)")
-        diffusion, lora_note = _compact_engine(inputs, tune_info, params.use_lora, device)
-        res = params.compact_resolution
-        if res % diffusion.restorer.scale:
-            raise GoError(
-                f"repair.compact_resolution must be a multiple of {diffusion.restorer.scale}, got {res}"
-            )
-        settings = replace(settings, resolution=res, lpips=params.compact_lpips)
-    else:
-        paths = WeightPaths(**tune_info["weights"])
-        weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
-        models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
-        use_lora = params.use_lora and tune_info.get("status") == "ok"
-        if use_lora:
-            spec, state = read_lora(Path(inputs["tune"]) / tune_info["lora"])
-            add_lora(models, spec)
-            load_lora_state_dict(models, spec, state)
-            for m in models.modules().values():
-                m.to(device)
-        diffusion = RepairDiffusion(
-            models,
-            prompt=str(tune_info.get("prompt", "a photo of xxy5syt00")),
-            device=device,
-            autocast_dtype=autocast_dtype,
-            guidance_scale=params.guidance_scale,
-        )
-        lora_note = "fine-tuned" if use_lora else "pretrained (no fine-tuning)"
+    # RepairSettings with the coarse step's settings (params.coarse), as the model needs them
+    diffusion, lora_note, settings = repair_model_named(repair_model).load(inputs, tune_info, params, device)
     lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
     _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     coarse = art.read_gaussians(inputs["coarse"])
-    bar: dict = {}
-
-    def advance(step: int, info: dict) -> None:
-        """Progress bar created at the first step run, so a resumed run starts at its checkpoint."""
-        if "p" not in bar:
-            bar["p"] = ctx.progress(settings.iterations, "Gaussian repair", completed=step - 1)
-        bar["p"].advance(1, loss=info.get("loss"), gaussians=info.get("n"))
+    bar = ResumedProgress(ctx, settings.iterations, "Gaussian repair")
 
     result, summary, facts = repair_gaussians(
         coarse,
@@ -151,10 +96,9 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         ctx.seed,
         checkpoint_dir=Path(ctx.checkpoint_dir),
         lpips=lpips,
-        on_progress=advance,
+        on_progress=lambda step, info: bar.advance(step, loss=info.get("loss"), gaussians=info.get("n")),
     )
-    if "p" in bar:
-        bar["p"].close()
+    bar.close()
     out = Path(ctx.out_dir)
     art.write_gaussians(out, result)
     write_curves(art.CURVES.path(out), facts["loss_log"])  # loss, train PSNR, Gaussians per logged step

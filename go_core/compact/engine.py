@@ -8,13 +8,17 @@ from go_core.compact.restorer import CompactRestorer
 
 
 class CompactRepair:
-    """What ``go_core.repair.repair.RepairCache`` calls for a one-pass repair model."""
-
-    one_pass = True
+    """The compact model's side of the repair interface (``restore``, as ``RepairDiffusion.restore``)."""
 
     def __init__(self, restorer: CompactRestorer, device: str = "cpu") -> None:
         self.restorer = restorer.to(device).eval()
         self.device = device
+
+    def restore(self, square: torch.Tensor, rng, generator, settings) -> tuple[torch.Tensor, int, float]:
+        """One repaired view for the repair loop: (images, label, w) with a blend strength b drawn from
+        ``settings.strength_range`` (its one-pass t: label = 1000 b) and the weight w = b."""
+        b = float(rng.uniform(*settings.strength_range))
+        return self.repair_one_pass(square, b), round(1000 * b), b
 
     @torch.no_grad()
     def repair_one_pass(self, square: torch.Tensor, strength: float) -> torch.Tensor:

@@ -149,6 +149,15 @@ class RepairDiffusion:
         """⌊num_inference_steps · t/T⌋ DDIM steps, at least one."""
         return max(1, min(num_inference_steps, math.floor(num_inference_steps * t_frac)))
 
+    def restore(self, square: torch.Tensor, rng, generator, settings) -> tuple[torch.Tensor, int, float]:
+        """One repaired view for the repair loop: (images, label, w): SDEdit at t/T drawn from
+        ``settings.t_range`` (label = the timestep) with DreamFusion's weight w(t)."""
+        from go_core.repair.weights import dreamfusion_weight
+
+        t_frac = float(rng.uniform(*settings.t_range))
+        res = self.repair(square, t_frac, generator, settings.num_inference_steps, settings.eta)
+        return res.images, res.timestep, dreamfusion_weight(self.alphas_cumprod, res.timestep)
+
     @torch.no_grad()
     def repair(
         self,

@@ -36,7 +36,7 @@ from go_core.repair.arcs import RepairArcs
 from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha
 from go_core.repair.loss import LpipsFn, repair_image_loss
 from go_core.repair.settings import RepairSettings
-from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_decay, neighbour_dmax
+from go_core.repair.weights import distance_weight, lrep_decay, neighbour_dmax
 from go_core.seeding import numpy_rng, torch_generator
 
 
@@ -150,14 +150,7 @@ class RepairCache:
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
             square = frame.to_square(base, s.resolution).to(self.diffusion.device)
-            if getattr(self.diffusion, "one_pass", False):
-                b = float(rng.uniform(*s.strength_range))
-                images, label, w = self.diffusion.repair_one_pass(square, b), round(1000 * b), b
-            else:
-                t_frac = float(rng.uniform(*s.t_range))
-                res = self.diffusion.repair(square, t_frac, gen, s.num_inference_steps, s.eta)
-                images, label = res.images, res.timestep
-                w = dreamfusion_weight(self.diffusion.alphas_cumprod, res.timestep)
+            images, label, w = self.diffusion.restore(square, rng, gen, s)  # the repair model's restore
             full = frame.from_square(images.float().cpu(), base)
             out.append(
                 CachedView(

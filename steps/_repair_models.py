@@ -1,0 +1,286 @@
+"""One interface to the two repair models (docs/repair.md), so the tune and repair steps never branch on
+which one runs: ``tune`` (the tune step: fit the model to the scene's Algorithm-1 pairs, write ``tune.json``
+and the tuned weights), ``load`` (the repair step: the tuned model as the repair loop's engine, the note the
+report shows and the repair settings it needs) and the engine's ``restore`` (the repair loop: one repaired
+view; go_core.compact.engine.CompactRepair, go_core.diffusion.sampler.RepairDiffusion). Implementations:
+``CompactModel`` (a pretrained one-pass restorer, fully fine-tuned) and ``SD15Model`` (SD1.5 +
+ControlNet-tile + CLIP with LoRA, the paper's).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+from go_core import artifacts as art
+from go_core.errors import GoError
+from go_pipeline.steps._common import ResumedProgress
+from go_pipeline.steps.weights import compact_info, weight_paths
+
+if TYPE_CHECKING:
+    from go_pipeline.steps.params import RepairParams, TuneParams
+
+
+class RepairModel(Protocol):
+    name: str  # "compact" | "sd15", as weights.json and tune.json record it
+
+    def tune(self, ctx, inputs: dict[str, Path], params: TuneParams) -> None:
+        """Fit the model to the scene's pairs; write ``tune.json`` (and the weights) into ``ctx.out_dir``."""
+        ...
+
+    def load(
+        self, inputs: dict[str, Path], tune_info: dict, params: RepairParams, device: str
+    ) -> tuple[Any, str, RepairParams]:
+        """(engine with ``restore``, "fine-tuned" | "pretrained (no fine-tuning)", the repair settings)."""
+        ...
+
+
+def _pair_source(inputs: dict[str, Path], params: TuneParams, views):
+    """Algorithm 1's pair source over the coarse model, the noise statistics and the leave-one-out pairs."""
+    from go_core.repair.noise import NoiseStats
+    from go_core.repair.pairs import LooPairs, PairSource
+
+    noise_cfg = art.read_json(inputs["noise_pairs"], art.NOISE_PAIRS_INFO)
+    coarse = art.read_gaussians(inputs["coarse"])
+    loo = LooPairs(inputs["loo"]) if params.use_loo_pairs else None
+    return PairSource(
+        coarse,
+        NoiseStats.from_json(noise_cfg["stats"]),
+        views,
+        loo,
+        p0=float(noise_cfg["p0"]),
+        decay=float(noise_cfg["decay"]),
+        backend=params.backend,
+        noise_scale=float(noise_cfg["noise_scale"]),
+    )
+
+
+class CompactModel:
+    """The compact restorer: a full fine-tune (or LoRA on its convolutions) with L1 and Adam."""
+
+    name = "compact"
+
+    def tune(self, ctx, inputs: dict[str, Path], params: TuneParams) -> None:
+        """Per-scene full fine-tune of the compact restorer (steps/tune.py)."""
+        from go_core.compact.restorer import CompactRestorer
+        from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
+        from go_core.io.safetensors_file import write_safetensors
+        from go_core.repair.data import training_views
+        from go_core.repair.pairs import LooPairs, pair_tensors
+
+        info = compact_info(inputs)
+        model = CompactRestorer.load(info["name"])  # missing or corrupt weights: one MissingWeightsError
+        base = {"repair_model": "compact", "compact": info}
+        if not params.finetune:
+            art.write_json(
+                ctx.out_dir,
+                art.TUNE_INFO,
+                {
+                    **base,
+                    "status": "pretrained",
+                    "reason": "ablation: no fine-tuning (pretrained restorer only)",
+                },
+            )
+            ctx.record(status="pretrained", repair_model="compact", reason="ablation: no fine-tuning")
+            return
+        settings = CompactTuneSettings(
+            steps=params.compact_steps,
+            lr=params.compact_lr,
+            betas=params.betas,
+            resolution=params.compact_resolution,
+            checkpoint_every=params.checkpoint_every,
+            method=params.compact_method,
+            rank=params.compact_rank,
+        )
+        if settings.resolution % model.scale:
+            raise ValueError(
+                f"tune.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"
+            )
+        _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
+        source = _pair_source(inputs, params, views)
+        loo = LooPairs(inputs["loo"])
+        loo_pairs = [pair_tensors(loo.get(i), settings.resolution) for i in range(len(loo))]
+        before = held_out_loss(model, loo_pairs)
+        bar = ResumedProgress(ctx, settings.steps, "compact tuning")
+        summary = tune_compact(
+            model, source.draw, source.schedule, settings, ctx.seed, Path(ctx.checkpoint_dir),
+            on_step=lambda step, loss: bar.advance(step), fingerprint_extra=info["sha256"],
+        )  # fmt: skip
+        bar.close()
+        after = held_out_loss(model, loo_pairs)
+        resumed_from = summary.pop("resumed_from")
+        tensors = {k: v.contiguous() for k, v in model.net.ncnn_tensors().items()}
+        meta = {"name": info["name"], "base_sha256": info["sha256"], "tuned_steps": str(settings.steps)}
+        write_safetensors(art.COMPACT_WEIGHTS.path(ctx.out_dir), tensors, meta)
+        out = {
+            **base,
+            "status": "ok",
+            "tuned": art.COMPACT_WEIGHTS.file,
+            "method": "full fine-tune (L1, Adam)"
+            if settings.method == "full"
+            else f"LoRA rank {settings.rank} on the convolutions, merged (L1, Adam)",
+            "settings": asdict(settings),
+            "loo_pairs_l1": {"before": round(before, 6), "after": round(after, 6), "pairs": len(loo_pairs)},
+            **summary,
+        }
+        art.write_json(ctx.out_dir, art.TUNE_INFO, out)
+        log = summary["loss_log"]
+        ctx.record(
+            status="ok", repair_model="compact", steps=settings.steps, resumed_from=resumed_from,
+            loss_first=log[0]["loss"] if log else None, loss_last=log[-1]["loss"] if log else None,
+            loo_pairs_l1_before=round(before, 6), loo_pairs_l1_after=round(after, 6),
+            pairs_used=summary["pairs_used"],
+        )  # fmt: skip
+
+    def load(
+        self, inputs: dict[str, Path], tune_info: dict, params: RepairParams, device: str
+    ) -> tuple[Any, str, RepairParams]:
+        if params.loss == "sds":
+            raise GoError("repair.loss 'sds' needs the sd15 repair model (weights.repair_model)")
+        engine, note = self._engine(inputs, tune_info, params.use_lora, device)
+        res = params.compact_resolution
+        if res % engine.restorer.scale:
+            raise GoError(
+                f"repair.compact_resolution must be a multiple of {engine.restorer.scale}, got {res}"
+            )
+        return engine, note, replace(params, resolution=res, lpips=params.compact_lpips)
+
+    @staticmethod
+    def _engine(inputs: dict[str, Path], tune_info: dict, use_lora: bool, device: str):
+        """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the tune step's artifact."""
+        from safetensors.torch import load_file
+
+        from go_core.compact.engine import CompactRepair
+        from go_core.compact.restorer import CompactRestorer
+
+        restorer = CompactRestorer.load(tune_info["compact"]["name"])  # one clear error when absent/corrupt
+        tuned = use_lora and tune_info.get("status") == "ok"
+        if tuned:
+            restorer.net.load_ncnn_tensors(load_file(str(Path(inputs["tune"]) / tune_info["tuned"])))
+        return CompactRepair(restorer, device), "fine-tuned" if tuned else "pretrained (no fine-tuning)"
+
+
+class SD15Model:
+    """SD1.5 + ControlNet-tile + CLIP, tuned with LoRA (paper Sec. 3.4) and repairing by SDEdit."""
+
+    name = "sd15"
+
+    def tune(self, ctx, inputs: dict[str, Path], params: TuneParams) -> None:
+        from go_core.diffusion.lora import LoraSpec, add_lora, save_lora
+        from go_core.diffusion.models import load_repair_models, precision_dtypes
+        from go_core.diffusion.sampler import RepairDiffusion
+        from go_core.repair.data import training_views
+        from go_core.repair.tuning import TuneSettings, tune
+
+        paths = weight_paths(inputs)
+        weights = paths.describe()
+        prompt = params.prompt
+        if not params.finetune:
+            art.write_json(
+                ctx.out_dir,
+                art.TUNE_INFO,
+                {
+                    "status": "pretrained",
+                    "reason": "ablation: no fine-tuning (pretrained ControlNet only)",
+                    "weights": weights,
+                    "prompt": prompt,
+                },
+            )
+            ctx.record(status="pretrained", reason="ablation: no fine-tuning")
+            return
+
+        device = str(ctx.device)
+        weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
+        models = load_repair_models(paths, device=device, dtype=weight_dtype)  # unreadable files raise
+        spec = LoraSpec(
+            rank=params.rank,
+            alpha=params.alpha,
+            unet=params.unet,
+            controlnet=params.controlnet,
+            text_encoder=params.text_encoder,
+        )
+        counts = add_lora(models, spec, seed=int(ctx.seed))
+        diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
+
+        _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
+        source = _pair_source(inputs, params, views)
+        settings = TuneSettings(
+            steps=params.steps,
+            lr=params.lr,
+            betas=params.betas,
+            weight_decay=params.weight_decay,
+            resolution=params.resolution,
+            checkpoint_every=params.checkpoint_every,
+        )
+        bar = ResumedProgress(ctx, settings.steps, "LoRA tuning")
+        summary = tune(
+            diffusion,
+            spec,
+            source,
+            settings,
+            ctx.seed,
+            checkpoint_dir=Path(ctx.checkpoint_dir),
+            on_step=lambda step, loss: bar.advance(step, loss=loss),
+            fingerprint_extra=device,
+        )
+        bar.close()
+        resumed_from = summary.pop("resumed_from")
+        save_lora(art.LORA_WEIGHTS.path(ctx.out_dir), models, spec, extra={"prompt": prompt})
+        info = {
+            "status": "ok",
+            "weights": weights,
+            "prompt": prompt,
+            "lora": art.LORA_WEIGHTS.file,
+            "spec": asdict(spec),
+            "lora_parameters": counts,
+            "settings": asdict(settings),
+            "device": device,
+            "precision": str(weight_dtype).replace("torch.", ""),
+            **summary,
+        }
+        art.write_json(ctx.out_dir, art.TUNE_INFO, info)
+        log = summary["loss_log"]
+        ctx.record(
+            status="ok",
+            steps=settings.steps,
+            resumed_from=resumed_from,
+            loss_first=log[0]["loss"] if log else None,
+            loss_last=log[-1]["loss"] if log else None,
+            pairs_used=summary["pairs_used"],
+            lora_parameters=sum(counts.values()),
+        )
+
+    def load(
+        self, inputs: dict[str, Path], tune_info: dict, params: RepairParams, device: str
+    ) -> tuple[Any, str, RepairParams]:
+        from go_core.diffusion.lora import add_lora, load_lora_state_dict, read_lora
+        from go_core.diffusion.models import WeightPaths, load_repair_models, precision_dtypes
+        from go_core.diffusion.sampler import RepairDiffusion
+
+        paths = WeightPaths(**tune_info["weights"])
+        weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
+        models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
+        use_lora = params.use_lora and tune_info.get("status") == "ok"
+        if use_lora:
+            spec, state = read_lora(Path(inputs["tune"]) / tune_info["lora"])
+            add_lora(models, spec)
+            load_lora_state_dict(models, spec, state)
+            for m in models.modules().values():
+                m.to(device)
+        diffusion = RepairDiffusion(
+            models,
+            prompt=str(tune_info.get("prompt", "a photo of xxy5syt00")),
+            device=device,
+            autocast_dtype=autocast_dtype,
+            guidance_scale=params.guidance_scale,
+        )
+        return diffusion, "fine-tuned" if use_lora else "pretrained (no fine-tuning)", params
+
+
+MODELS: dict[str, RepairModel] = {"compact": CompactModel(), "sd15": SD15Model()}
+
+
+def repair_model_named(name: str) -> RepairModel:
+    """The implementation of the repair model ``name`` (weights.json / tune.json ``repair_model``)."""
+    return MODELS[name]
