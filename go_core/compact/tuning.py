@@ -28,14 +28,16 @@ CKPT = ("compact_step", "compact-tune-1")  # checkpoint file prefix and format
 
 @dataclass(frozen=True)
 class CompactTuneSettings:
-    steps: int = 400
-    lr: float = 1e-4
-    betas: tuple[float, float] = (0.9, 0.999)
-    resolution: int = 256
-    checkpoint_every: int = 100
+    """The compact tuning loop's knobs; the tune step fills them from its params (``compact_*``)."""
+
+    steps: int
+    lr: float
+    betas: tuple[float, float]
+    resolution: int
+    checkpoint_every: int
+    method: str  # "full": every weight; "lora": rank-``rank`` adapters on the convolutions (peft)
+    rank: int
     log_every: int = 10
-    method: str = "full"  # "full": every weight; "lora": rank-``rank`` adapters on the convolutions (peft)
-    rank: int = 8
 
     def fingerprint(self, extra: str = "") -> str:
         return fingerprint_of({"s": asdict(self), "x": extra})

@@ -26,12 +26,14 @@ CKPT = ("lora_step", 1)  # checkpoint file prefix and format
 
 @dataclass(frozen=True)
 class TuneSettings:
-    steps: int = 1800
-    lr: float = 1e-3
-    betas: tuple[float, float] = (0.9, 0.999)
-    weight_decay: float = 1e-2
-    resolution: int = 512
-    checkpoint_every: int = 300
+    """The tuning loop's knobs; the tune step fills them from its params (whose defaults are the paper's)."""
+
+    steps: int
+    lr: float
+    betas: tuple[float, float]
+    weight_decay: float
+    resolution: int
+    checkpoint_every: int
     log_every: int = 10
 
     def fingerprint(self, spec: LoraSpec, extra: str = "") -> str:
