@@ -412,17 +412,17 @@ def _run_one(run: _Run, name: str, forced: bool) -> StepResult:
     """One step: reuse its cached artifact, else (after checking what it reads) skip or launch it, and
     commit what it wrote under its key."""
     plan, spec = run.plan, run.plan.pipeline.steps[name]
-    inputs = _input_hashes(spec, run.scene_hash, run.done, plan.scene_dir)
-    assert inputs is not None  # topological order: every upstream is in `done`
-    key = _key_for(plan, name, inputs)
-    run.display.current_step = name
-    cached = _reuse(run, name, key, forced)
-    if cached is not None:
-        return cached
-    run.display.open_log()
-    if _verify_inputs(run, spec):
-        # an upstream was damaged and recomputed: its content (so this key) may differ
-        return _run_one(run, name, forced)
+    while True:  # again when a damaged upstream was recomputed: its content (so this key) may differ
+        inputs = _input_hashes(spec, run.scene_hash, run.done, plan.scene_dir)
+        assert inputs is not None  # topological order: every upstream is in `done`
+        key = _key_for(plan, name, inputs)
+        run.display.current_step = name
+        cached = _reuse(run, name, key, forced)
+        if cached is not None:
+            return cached
+        run.display.open_log()
+        if not _verify_inputs(run, spec):
+            break
     skip = _runner_skip(run, name)
     if skip is None:
         run.display.log.info(f"  {name:<12} running  {key[:12]} ...")
