@@ -38,3 +38,9 @@ def schema_path(name: str) -> Path:
 def example_scene_path() -> Path:
     """The built-in example scene (a copy of the CC BY 4.0 sample ``basket``; see its ATTRIBUTION.txt)."""
     return _PKG / "examples" / "basket"
+
+
+def viewer_bundle_dir() -> Path:
+    """The vendored splat viewer (three.js + Spark, built by js/build.mjs): viewer.min.js, viewer.json and
+    the licences. Inside the package in both installs, so a wheel carries it."""
+    return _RESOURCES / "viewer"

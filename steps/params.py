@@ -25,6 +25,7 @@ from go_core.config import setting
 from go_core.repair.settings import LooSettings, RepairSettings
 
 Precision = Literal["auto", "bf16", "fp16", "fp32"]
+ExportFormat = Literal["ply", "spz", "splat", "compressed_ply"]
 
 
 @dataclass
@@ -165,6 +166,15 @@ class RepairParams(RepairSettings):
 @dataclass
 class ExportParams:
     sh_degree: int = setting(3, ge=0, le=3, doc="SH degree written (f_rest zero-padded; 3: viewers)")
+    formats: tuple[ExportFormat, ...] = setting(
+        ("ply", "spz"),
+        doc="files: ply (INRIA, always), spz (Niantic), splat (antimatter15), compressed_ply (SuperSplat)",
+    )
+
+    def check(self) -> list[str]:
+        return (
+            [] if "ply" in self.formats else ["export.formats must hold ply (the model the other steps read)"]
+        )
 
 
 @dataclass

@@ -192,7 +192,11 @@ def _assets(report: dict, out_dir: Path) -> dict[str, str]:
     assets: dict[str, str] = {}
     if plot_test_grid(report, out_dir / "test_grid.png"):
         assets["grid"] = "test_grid.png"
-    for key, name in (("turntable", "turntable.gif"), ("camera_path", "camera_path.mp4")):
+    for key, name in (
+        ("turntable", "turntable.gif"),
+        ("contact_sheet", "contact_sheet.png"),
+        ("camera_path", "camera_path.mp4"),
+    ):
         found = report.get("images", {}).get(key)
         if found and Path(found).is_file():
             shutil.copyfile(found, out_dir / name)
@@ -288,6 +292,8 @@ def write_markdown(report: dict, out_dir: Path) -> Path:
         lines += ["## Test views", "", GRID_CAPTION, "", f"![test views]({assets['grid']})", ""]
     if "turntable" in assets:
         lines += ["## Turntable", "", f"![turntable]({assets['turntable']})", ""]
+    if "contact_sheet" in assets:
+        lines += ["## Contact sheet", "", f"![contact sheet]({assets['contact_sheet']})", ""]
     if "camera_path" in assets:
         lines += [f"Video along the camera path: [{assets['camera_path']}]({assets['camera_path']})", ""]
     if "curves" in assets:
@@ -310,6 +316,19 @@ def _data_uri(path: Path) -> str:
     kinds = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".mp4": "video/mp4"}
     kind = kinds.get(path.suffix, "image/png")
     return f"data:{kind};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _viewer_block(report: dict) -> str | None:
+    """The interactive viewer of the exported model with the scene's cameras, when both are on disk."""
+    files = report.get("files", {})
+    if not files.get("model_ply") or not files.get("scene_cameras"):
+        return None
+    from go_pipeline.reporting.viewer import viewer_data, viewer_html
+
+    turntable = next((s["params"] for s in report["steps"] if s["name"] == "turntable"), {})
+    background = turntable.get("background", (1.0, 1.0, 1.0))
+    data = viewer_data(Path(files["model_ply"]), Path(files["scene_cameras"]).parent, background)
+    return viewer_html(data)
 
 
 def html_report(report: dict) -> str:
@@ -343,6 +362,9 @@ def html_report(report: dict) -> str:
     ]
     if "grid" in uris:
         parts.append(f"<h2>Test views</h2><p>{e(GRID_CAPTION)}</p><img src='{uris['grid']}'>")
+    viewer = _viewer_block(report)
+    if viewer:
+        parts.append("<h2>3D viewer</h2>" + viewer)
     if "turntable" in uris or "camera_path" in uris:
         parts.append("<h2>Turntable and camera path</h2><p>")
         if "turntable" in uris:
@@ -352,6 +374,8 @@ def html_report(report: dict) -> str:
                 f"<video src='{uris['camera_path']}' controls loop muted autoplay playsinline></video>"
             )
         parts.append("</p>")
+    if "contact_sheet" in uris:
+        parts.append(f"<h2>Contact sheet</h2><img src='{uris['contact_sheet']}' alt='contact sheet'>")
     if "curves" in uris:
         parts.append(f"<h2>Training curves</h2><img src='{uris['curves']}'>")
     if vr:

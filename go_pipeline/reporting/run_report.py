@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from go_core import artifacts as art
+from go_core.formats import FILE_NAMES
 from go_pipeline import store
 
 REPORT_SCHEMA_ID = "go-pipeline/run-report"
@@ -131,14 +132,19 @@ def build_report(
     files = {}
     for label, step, name in (
         ("turntable", "turntable", art.TURNTABLE.file),
+        ("contact_sheet", "turntable", art.CONTACT_SHEET.file),
         ("camera_path", "turntable", art.CAMERA_PATH_VIDEO.file),
         ("curves_coarse", "coarse", art.CURVES.file),
         ("curves_repair", "repair", art.CURVES.file),
         ("model_ply", "export", art.POINT_CLOUD.file),
+        ("model_spz", "export", FILE_NAMES["spz"]),
+        ("scene_cameras", "scene", art.SCENE_INFO.file),
     ):
         found = store.artifact_dir(wd, step) if step in manifests else None
         if found is not None and (found / name).is_file():
-            (images if label in ("turntable", "camera_path") else files)[label] = str(found / name)
+            (images if label in ("turntable", "contact_sheet", "camera_path") else files)[label] = str(
+                found / name
+            )
     return {
         "schema": REPORT_SCHEMA_ID,
         "version": REPORT_VERSION,

@@ -1,0 +1,172 @@
+"""Round trip of the compressed export formats through an independent reader (npm spz-js, run by node):
+how far each attribute moves, and what the read-back model renders like next to the original.
+
+    cd js && npm ci && cd ..
+    /work/bin/cpujob python benchmarks/export_roundtrip.py go-example/basket \
+        --json benchmarks/results/export_roundtrip.json
+
+For the scene's final model (the export step's ``point_cloud.ply``), writes ``.spz`` and SuperSplat
+``.compressed.ply``, reads each back with spz-js, and reports per attribute the largest and mean absolute
+error (positions against the format's quantisation step), then renders original and read-back model from
+every test camera (go-pipeline's rasterizer) and compares both against the ground truth (PSNR, masked).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+READER = ROOT / "js" / "read_splats.mjs"
+SUFFIXES = {"spz": ".spz", "compressed_ply": ".compressed.ply"}
+
+
+def reader_missing() -> str | None:
+    """Why the independent reader cannot run here, or None."""
+    if shutil.which("node") is None:
+        return "needs node (Debian: apt-get install nodejs)"
+    if not (ROOT / "js" / "node_modules" / "spz-js").is_dir():
+        return "needs npm spz-js (cd js && npm ci)"
+    return None
+
+
+def read_back(path: Path):
+    """The Gaussians that spz-js decodes from ``path`` (a .spz or a SuperSplat .compressed.ply)."""
+    from go_core.gaussians import Gaussians
+
+    with tempfile.TemporaryDirectory(prefix="go-readback-") as tmp:
+        out = Path(tmp) / "cloud"
+        subprocess.run(["node", str(READER), str(path), str(out)], check=True, capture_output=True)
+        meta = json.loads(out.with_suffix(".json").read_text())
+        flat = np.fromfile(out.with_suffix(".f32"), dtype="<f4")
+    n, parts, at = meta["numPoints"], {}, 0
+    for name, length in meta["lengths"].items():
+        parts[name] = flat[at : at + length]
+        at += length
+    rest = parts["sh"].reshape(n, -1, 3)
+    sh = np.concatenate([parts["colors"].reshape(n, 1, 3), rest], axis=1)
+    quats = parts["rotations"].reshape(n, 4)[:, [3, 0, 1, 2]]  # xyzw -> wxyz
+    return Gaussians(
+        means=torch.from_numpy(parts["positions"].reshape(n, 3).copy()),
+        quats=torch.from_numpy(np.ascontiguousarray(quats)),
+        log_scales=torch.from_numpy(parts["scales"].reshape(n, 3).copy()),
+        opacity_logits=torch.from_numpy(parts["alphas"].copy()),
+        sh=torch.from_numpy(np.ascontiguousarray(sh)),
+    )
+
+
+def match_order(original, decoded) -> torch.Tensor:
+    """Index of each decoded Gaussian's original (formats may reorder; nearest position, unique)."""
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(original.means.double().numpy()).query(decoded.means.double().numpy())
+    return torch.from_numpy(idx)
+
+
+def attribute_errors(original, decoded) -> dict[str, dict[str, float]]:
+    """Largest and mean absolute round-trip error per attribute (rotation: angle in degrees)."""
+    o = original.select(match_order(original, decoded)).with_sh_degree(decoded.sh_degree)
+    qa, qb = o.normalized_quats().double(), decoded.normalized_quats().double()
+    angle = torch.rad2deg(2 * torch.acos((qa * qb).sum(-1).abs().clamp(max=1.0)))
+    diffs = {
+        "position": (decoded.means.double() - o.means.double()).abs(),
+        "log_scale": (decoded.log_scales.double() - o.log_scales.double()).abs(),
+        "rotation_deg": angle,
+        "opacity": (decoded.opacities().double() - o.opacities().double()).abs(),
+        "sh_dc": (decoded.sh[:, 0].double() - o.sh[:, 0].double()).abs(),
+        "sh_rest": (decoded.sh[:, 1:].double() - o.sh[:, 1:].double()).abs(),
+    }
+    return {
+        k: {"max": float(v.max()) if v.numel() else 0.0, "mean": float(v.mean()) if v.numel() else 0.0}
+        for k, v in diffs.items()
+    }
+
+
+def renders(g, cameras, background) -> list[torch.Tensor]:
+    """``g`` rendered by go-pipeline's rasterizer from each camera, float64 [H, W, 3] in [0, 1]."""
+    from go_core.render import render_camera
+
+    return [render_camera(g, cam, background=background).rgb[0].clamp(0, 1).double() for cam in cameras]
+
+
+def psnr(a: torch.Tensor, b: torch.Tensor, where: torch.Tensor | None = None) -> float:
+    err = (a - b) ** 2
+    return float(-10 * torch.log10(err[where].mean() if where is not None else err.mean()))
+
+
+def compare(images: list[torch.Tensor], refs: list[torch.Tensor], masks: list[torch.Tensor]) -> dict:
+    """Mean PSNR of ``images`` against ``refs``, over all pixels and over the object's (mask > 0.5)."""
+    return {
+        "psnr": float(np.mean([psnr(a, b) for a, b in zip(images, refs, strict=True)])),
+        "psnr_object": float(np.mean([psnr(a, b, m) for a, b, m in zip(images, refs, masks, strict=True)])),
+    }
+
+
+def ground_truth(view, background: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The test photo on the render background (composited with its mask) and the object's pixels."""
+    img = torch.as_tensor(view.image[..., :3], dtype=torch.float64)
+    if view.mask is None:
+        return img, torch.ones(img.shape[:2], dtype=torch.bool)
+    m = torch.as_tensor(view.mask, dtype=torch.float64)[..., None]
+    return img * m + background.double() * (1 - m), m[..., 0] > 0.5
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("scene", type=Path)
+    p.add_argument("--workdir", type=Path, default=None)
+    p.add_argument("--json", type=Path, default=None)
+    args = p.parse_args(argv)
+    why = reader_missing()
+    if why:
+        print(f"error: {why}", file=sys.stderr)
+        return 2
+    from go_core import artifacts as art
+    from go_core.formats import encode
+    from go_core.formats.spz import position_step
+    from go_core.ply import load_ply
+    from go_pipeline import store
+
+    wd = store.workdir_for(args.scene, args.workdir)
+    g = load_ply(store.artifact_dir(wd, "export") / art.POINT_CLOUD.file)
+    scene = art.read_scene(store.artifact_dir(wd, "scene"))
+    bg = torch.ones(3, dtype=torch.float32)
+    cams = [v.camera for v in scene.test]
+    gt, masks = zip(*(ground_truth(v, bg) for v in scene.test), strict=True)
+    original = renders(g, cams, bg)
+    result = {"scene": str(args.scene), "gaussians": len(g), "test_views": len(cams)}
+    result["original_vs_gt"] = compare(original, list(gt), list(masks))
+    ply_bytes = (store.artifact_dir(wd, "export") / art.POINT_CLOUD.file).stat().st_size
+    with tempfile.TemporaryDirectory(prefix="go-roundtrip-") as tmp:
+        for fmt, suffix in SUFFIXES.items():
+            path = Path(tmp) / f"model{suffix}"
+            path.write_bytes(encode(g, fmt))
+            back = read_back(path)
+            decoded = renders(back, cams, bg)
+            result[fmt] = {
+                "bytes": path.stat().st_size,
+                "ply_bytes": ply_bytes,
+                "gaussians_read": len(back),
+                "errors": attribute_errors(g, back),
+                "readback_vs_gt": compare(decoded, list(gt), list(masks)),
+                "readback_vs_original_render": compare(decoded, original, list(masks)),
+            }
+    result["spz"]["position_step"] = position_step()
+    text = json.dumps(result, indent=2, sort_keys=True)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
