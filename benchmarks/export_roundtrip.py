@@ -76,10 +76,12 @@ def attribute_errors(original, decoded) -> dict[str, dict[str, float]]:
     o = original.select(match_order(original, decoded)).with_sh_degree(decoded.sh_degree)
     qa, qb = o.normalized_quats().double(), decoded.normalized_quats().double()
     angle = torch.rad2deg(2 * torch.acos((qa * qb).sum(-1).abs().clamp(max=1.0)))
+    sign = torch.where((qa * qb).sum(-1, keepdim=True) < 0, -1.0, 1.0).double()
     diffs = {
         "position": (decoded.means.double() - o.means.double()).abs(),
         "log_scale": (decoded.log_scales.double() - o.log_scales.double()).abs(),
         "rotation_deg": angle,
+        "quat_xyz": (qb[:, 1:] * sign - qa[:, 1:]).abs(),
         "opacity": (decoded.opacities().double() - o.opacities().double()).abs(),
         "sh_dc": (decoded.sh[:, 0].double() - o.sh[:, 0].double()).abs(),
         "sh_rest": (decoded.sh[:, 1:].double() - o.sh[:, 1:].double()).abs(),
@@ -98,12 +100,15 @@ def renders(g, cameras, background) -> list[torch.Tensor]:
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor, where: torch.Tensor | None = None) -> float:
-    err = (a - b) ** 2
+    """PSNR of two [H, W, 3] images in [0, 1], over the pixels ``where`` (default all)."""
+    err = ((a - b) ** 2).mean(-1)
     return float(-10 * torch.log10(err[where].mean() if where is not None else err.mean()))
 
 
 def compare(images: list[torch.Tensor], refs: list[torch.Tensor], masks: list[torch.Tensor]) -> dict:
     """Mean PSNR of ``images`` against ``refs``, over all pixels and over the object's (mask > 0.5)."""
+    if any(m is None for m in masks):
+        return {"psnr": float(np.mean([psnr(a, b) for a, b in zip(images, refs, strict=True)]))}
     return {
         "psnr": float(np.mean([psnr(a, b) for a, b in zip(images, refs, strict=True)])),
         "psnr_object": float(np.mean([psnr(a, b, m) for a, b, m in zip(images, refs, masks, strict=True)])),

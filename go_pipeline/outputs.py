@@ -3,7 +3,9 @@ stable names, each written atomically (a temp file renamed into place):
 
 ```
 model.ply        the final model (export step), INRIA layout
+model.spz        the same model as Niantic .spz (export.formats; also model.splat, model.compressed.ply)
 turntable.gif    the turntable (turntable step); turntable.mp4 / camera_path.mp4 when the step made them
+contact_sheet.png  a few turntable frames side by side (turntable step)
 metrics.json     PSNR / SSIM / LPIPS per test view and mean (eval step)
 report.html      the run report, one self-contained file
 index.json       which step artifact (key) each file came from
@@ -20,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from go_core import artifacts as art
+from go_core.formats import FILE_NAMES
 from go_core.io.atomic import readable
 from go_pipeline import store
 
@@ -28,7 +31,9 @@ INDEX = "index.json"
 # stable name -> (step, file in the step's artifact); optional ones are published when the step wrote them
 COPIED = {
     "model.ply": ("export", art.POINT_CLOUD.file),
+    **{FILE_NAMES[f]: ("export", FILE_NAMES[f]) for f in ("spz", "splat", "compressed_ply")},
     "turntable.gif": ("turntable", art.TURNTABLE.file),
+    "contact_sheet.png": ("turntable", art.CONTACT_SHEET.file),
     "turntable.mp4": ("turntable", "turntable.mp4"),
     "camera_path.mp4": ("turntable", art.CAMERA_PATH_VIDEO.file),
     "metrics.json": ("eval", art.METRICS.file),
@@ -122,15 +127,45 @@ def result_lines(
             f"  {len(metrics.get('views', []))} test views: PSNR {fmt('psnr', '.2f', ' dB')}, "
             f"SSIM {fmt('ssim', '.4f')}, LPIPS* {fmt('lpips_star', '.2f')}"
         )
-    width = max((len(n) for n in files), default=0)
-    for name in ("model.ply", "turntable.gif", "turntable.mp4", "camera_path.mp4", "report.html"):
-        if name in files:
-            lines.append(f"  {name:<{width}}  {show(files[name])}")
+    lines += what_you_got(files, show)
     if profile in ("example", "test"):
-        nxt = f"go-pipeline run {scene_arg} --profile paper   # the paper's full-length settings"
+        nxt = (
+            f"go-pipeline run {scene_arg} --profile paper   # the paper's full-length settings "
+            f"(about {PAPER_TIME_FACTOR}x this run's time)"
+        )
     else:
         nxt = f"go-pipeline runs {scene_arg}   # compare this run with the earlier ones"
     lines.append(f"next: open {show(files['report.html'])} in a browser, or {nxt}")
+    return lines
+
+
+# what each published file is, in the order the end of a run lists them
+WHAT = {
+    "model.ply": "the model (INRIA 3DGS .ply: SuperSplat, SIBR, most viewers)",
+    "model.spz": "the model, ~10x smaller (Niantic .spz)",
+    "model.splat": "the model for antimatter15-style web viewers (.splat)",
+    "model.compressed.ply": "the model, compressed for SuperSplat",
+    "report.html": "the report: metrics, 3D viewer, images (one self-contained file)",
+    "turntable.gif": "turntable",
+    "turntable.mp4": "turntable (video)",
+    "camera_path.mp4": "video through the training cameras",
+    "contact_sheet.png": "contact sheet of the turntable",
+    "metrics.json": "PSNR / SSIM / LPIPS per test view",
+}
+# the paper profile against the example profile, in run time (coarse 10k iterations at full resolution and
+# the paper's repair settings: 616-655 CPU s for coarse alone against ~130 CPU s for the whole example run)
+PAPER_TIME_FACTOR = 5
+
+
+def what_you_got(files: dict[str, Path], show) -> list[str]:
+    """The "what you got" block: each published file with what it is, in one folder."""
+    names = [n for n in WHAT if n in files]
+    if not names:
+        return []
+    folder = files[names[0]].parent
+    lines = [f"what you got, in {show(folder)}/:"]
+    width = max(len(n) for n in names)
+    lines += [f"  {n:<{width}}  {WHAT[n]}" for n in names]
     return lines
 
 

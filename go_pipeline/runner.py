@@ -40,6 +40,12 @@ class StepFailed(GoError):
     exit_code = 1
 
 
+def _build_note(results: list[StepResult]) -> str:
+    """What part of a run's wall time was the one-time rasterizer compile (in no step's time)."""
+    build = sum(float(r.record.get("rasterizer_build_s", 0.0)) for r in results if not r.cached)
+    return f", of which {build:.0f} s the one-time compile of the CPU rasterizer" if build >= 0.5 else ""
+
+
 @dataclass
 class StepResult:
     name: str
@@ -393,9 +399,9 @@ def _run_locked(plan: _Plan, selection: _Selection, options: RunOptions, lock_fd
             _utc_now(), time.perf_counter() - t0, dict(plan.overrides),
         )  # fmt: skip
         _write_summary(plan.workdir, summary)
-        ran = len(summary.ran)
+        ran, note = len(summary.ran), _build_note(results)
         display.log.info(
-            f"done: {ran} step(s) ran, {len(results) - ran} cached ({summary.wall_s:.1f} s)"
+            f"done: {ran} step(s) ran, {len(results) - ran} cached ({summary.wall_s:.1f} s{note})"
             if ran
             else f"everything is up to date ({len(results)} steps cached, {summary.wall_s:.1f} s)"
         )

@@ -1,27 +1,72 @@
 """The run report as a browser shows it: headless Chromium (Debian's `chromium`) renders the report.html of
-the built-in example (test profile) and the screenshot shows its images (benchmarks/report_screenshot.py)."""
+the built-in example (test profile); the screenshot shows its images, and its interactive 3D viewer, put
+on a test camera, draws what go-pipeline's own rasterizer draws from it (benchmarks/report_screenshot.py)."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+import torch
 from _benchmark_module import benchmark_module
+
+shot = benchmark_module("report_screenshot")
+needs_chromium = pytest.mark.skipif(
+    shot.find_chromium() is None, reason="needs chromium (Debian: apt-get install chromium)"
+)
+VIEWER_MIN_PSNR = 25.0  # dB on the object's pixels (issue 36)
+
+
+@pytest.fixture(scope="module")
+def example(tmp_path_factory):
+    from go_pipeline.cli import main
+
+    work = tmp_path_factory.mktemp("ex")
+    assert main(["run", "--example", "--workdir", str(work), "--profile", "test", "--quiet"]) == 0
+    return work / "basket"
 
 
 @pytest.mark.slow
-def test_report_html_renders_in_headless_chromium(tmp_path):
-    shot = benchmark_module("report_screenshot")
-    if shot.find_chromium() is None:
-        pytest.skip("needs chromium (Debian: apt-get install chromium)")
-    from go_pipeline.cli import main
-
-    work = tmp_path / "ex"
-    assert main(["run", "--example", "--workdir", str(work), "--profile", "test", "--quiet"]) == 0
-    html = work / "basket" / ".go" / "outputs" / "report.html"
+@needs_chromium
+def test_report_html_renders_in_headless_chromium(example, tmp_path):
+    html = example / ".go" / "outputs" / "report.html"
     text = html.read_text()
     assert "Test views" in text and "mean |RGB error|" not in text  # the colour bar label is in the image
-    assert text.count("data:image/png;base64,") >= 3 and "data:image/gif;base64," in text
+    assert text.count("data:image/png;base64,") >= 4 and "data:image/gif;base64," in text  # + contact sheet
     png = shot.screenshot(html, tmp_path / "report.png")
     facts = shot.check_screenshot(png)
     assert (facts["width"], facts["height"]) == (1200, 2400)
     assert facts["non_white_fraction"] > 0.05  # text, tables and images, not a blank page
     assert facts["colourful_fraction"] > 0.005  # the error maps and plots were drawn
+
+
+@pytest.mark.slow
+@needs_chromium
+def test_report_viewer_matches_the_rasterizer_on_a_test_camera(example, tmp_path):
+    from PIL import Image
+
+    from go_core import artifacts as art
+    from go_core.ply import load_ply
+    from go_core.render import render_camera
+    from go_pipeline import store
+
+    html = example / ".go" / "outputs" / "report.html"
+    assert html.stat().st_size < 15e6  # a typical report stays small enough to mail
+    wd = example / ".go"
+    _, test = art.read_scene_cameras(store.artifact_dir(wd, "scene"))
+    g = load_ply(example / ".go" / "outputs" / "model.ply")
+    index = len(test) // 2
+    out = render_camera(g, test[index], background=torch.ones(3))
+    ours = out.rgb[0].clamp(0, 1).double().numpy()
+    obj = out.alpha[0, ..., 0].numpy() > 0.5  # the object's pixels, as the rasterizer draws them
+    viewer = shot.viewer_shot(html, "test", index).astype(np.float64) / 255.0
+    Image.fromarray(np.concatenate([(ours * 255).round().astype(np.uint8), viewer_u8(viewer)], 1)).save(
+        tmp_path / "viewer_vs_rasterizer.png"
+    )
+    assert viewer.shape == ours.shape
+    assert obj.mean() > 0.02  # the camera sees the object
+    psnr = -10 * np.log10(((viewer - ours) ** 2).mean(-1)[obj].mean())
+    assert psnr >= VIEWER_MIN_PSNR, f"viewer vs rasterizer on the object's pixels: {psnr:.2f} dB"
+
+
+def viewer_u8(img: np.ndarray) -> np.ndarray:
+    return (img * 255).round().astype(np.uint8)

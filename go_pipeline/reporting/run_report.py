@@ -35,6 +35,15 @@ def validate_report(report: dict) -> None:
     jsonschema.validate(report, json.loads(schema_path().read_text()))
 
 
+def code_digest(code: dict[str, str] | None) -> str | None:
+    """12 hex digits naming a step's code (its files and their SHA-256, from the manifest), or None."""
+    if not code:
+        return None
+    import hashlib
+
+    return hashlib.sha256(json.dumps(code, sort_keys=True).encode()).hexdigest()[:12]
+
+
 def _step_order(workdir: Path, manifests: dict[str, dict], pipeline_path: str | Path | None) -> list[str]:
     try:
         from go_pipeline.pipeline import load_pipeline
@@ -105,6 +114,7 @@ def build_report(
             {
                 "name": name,
                 "version": m.get("version"),
+                "code": code_digest(m.get("code")),
                 "key": m.get("key"),
                 "status": rec.get("status", "ok"),
                 "reason": rec.get("reason"),
@@ -161,11 +171,13 @@ def build_report(
             "wall_s": sum(s["wall_s"] for s in steps),
             "cpu_s": sum(s["cpu_s"] for s in steps),
             "peak_mem_mb": max((s["peak_mem_mb"] for s in steps), default=0.0),
+            "rasterizer_build_s": sum(float(s["record"].get("rasterizer_build_s", 0.0)) for s in steps),
         },
         "result": _result(manifests, metrics),
         "metrics": _metrics_block(metrics),
         "images": images,
         "files": files,
+        "outputs": published_outputs(wd, manifests),
         "warnings": mixed_run_problems(manifests),
         "settings": _settings(wd),
     }
@@ -180,6 +192,22 @@ def _settings(workdir: Path) -> dict[str, Any] | None:
     except Exception:  # noqa: BLE001 - a damaged params.yaml must not hide the report
         return None
     return saved.to_dict() if saved is not None else None
+
+
+def published_outputs(workdir: Path, manifests: dict[str, dict]) -> dict[str, str]:
+    """The files of ``WORKDIR/outputs`` (stable names) when they were published from these artifacts, so the
+    report names ``outputs/model.ply`` rather than a path under artifacts/<step>/<key>/; else empty."""
+    from go_pipeline.outputs import INDEX, OUTPUTS_DIR
+
+    out = workdir / OUTPUTS_DIR
+    try:
+        index = json.loads((out / INDEX).read_text())
+    except (OSError, ValueError):
+        return {}
+    keys = index.get("keys", {})
+    if any(manifests.get(step, {}).get("key") != key for step, key in keys.items()):
+        return {}
+    return {name: str(out / name) for name in sorted(index.get("files", {})) if (out / name).is_file()}
 
 
 def mixed_run_problems(manifests: dict[str, dict]) -> list[str]:
