@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.coarse.depth_prior import DepthEstimator, save_depth_priors
+from go_core.extras import require_extra
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import DepthParams
@@ -17,6 +18,7 @@ if TYPE_CHECKING:
 
 def run(ctx, inputs: dict[str, Path], params: DepthParams) -> None:
     # without a model (depth.model_path empty) the runner skips this step without a worker (steps/registry.py)
+    require_extra("sd15", "the depth prior (depth.model_path, a transformers model)")
     estimator = DepthEstimator(Path(params.model_path), device="cpu")
     scene = art.read_scene(inputs["scene"])
     maps = []

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.errors import MissingWeightsError
+from go_core.extras import require_extra
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import WeightsParams
@@ -72,6 +73,7 @@ def run(ctx, inputs: dict[str, Path], params: WeightsParams) -> None:
         ctx.record(status="skipped", reason=reason)
         ctx.log.warning("%s; the result will be the coarse model", reason)
     else:
+        require_extra("sd15", "the SD1.5 repair (weights.sd15_path / controlnet_path)")
         info = {"status": "ok", "reason": "", "repair_model": "sd15", "paths": paths.describe()}
         ctx.record(status="ok", repair_model="sd15")
     art.write_json(ctx.out_dir, art.WEIGHTS_INFO, info)

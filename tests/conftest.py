@@ -34,3 +34,31 @@ def single_thread():
 
     with one_thread():
         yield
+
+
+# The optional stacks (pyproject extras): a test that needs one skips, saying which extra, where it is not
+# installed (a base `pip install -e .`); `pip install -e ".[dev]"` pulls them, so CI runs those tests.
+EXTRA_OF_MODULE = {"diffusers": "sd15", "transformers": "sd15", "peft": "sd15", "ray": "ray"}
+
+
+def _missing_extra(excinfo) -> str | None:
+    if excinfo is None or not isinstance(excinfo[1], ModuleNotFoundError):
+        return None
+    extra = EXTRA_OF_MODULE.get((excinfo[1].name or "").split(".")[0])
+    return f"needs the [{extra}] extra: pip install -e '.[{extra}]'" if extra else None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item):
+    outcome = yield
+    why = _missing_extra(outcome.excinfo)
+    if why:
+        outcome.force_exception(pytest.skip.Exception(why, _use_item_location=True))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item):
+    outcome = yield
+    why = _missing_extra(outcome.excinfo)
+    if why:
+        outcome.force_exception(pytest.skip.Exception(why, _use_item_location=True))

@@ -12,7 +12,7 @@ from _eval_toy import make_eval_toy
 from go_pipeline.reporting.batch import find_scenes, run_batch, write_results
 from go_pipeline.reporting.run_report import validate_report
 
-ray = pytest.importorskip("ray")
+ray = pytest.importorskip("ray", reason="needs the [ray] extra: pip install -e '.[ray]'")
 
 
 def test_ray_batch_with_a_broken_scene(tmp_path, monkeypatch):

@@ -77,6 +77,9 @@ def tune_compact(
     schedule whose state is checkpointed (``PairSchedule``). Returns a summary dict."""
     if settings.method == "lora":
         from go_core.compact.lora import add_conv_lora
+        from go_core.extras import require_extra
+
+        require_extra("sd15", "lora.compact_method lora (peft adapters)")
 
         add_conv_lora(model.net, settings.rank, seed)
     elif settings.method != "full":

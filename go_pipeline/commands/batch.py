@@ -37,8 +37,9 @@ def add_parser(subparsers) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from go_pipeline.reporting.batch import find_scenes, run_batch, write_results
+    from go_pipeline.reporting.batch import find_scenes, import_ray, run_batch, write_results
 
+    import_ray()  # without the [ray] extra: one line saying how to install it, before anything else
     scenes = find_scenes(args.root)
     print(f"{len(scenes)} scenes under {args.root}: " + ", ".join(s.name for s in scenes))
     options = {

@@ -1,4 +1,4 @@
-"""`go-pipeline report SCENE [--format json|md|html] [-o OUT]`: the run report of a scene's work dir.
+"""`go-pipeline report SCENE [--format json|md|html] [-o OUT] [--open]`: the run report of a scene's work dir.
 
 The report refuses artifacts that come from different runs (a step made from another upstream artifact
 than the one shown, e.g. after `run --until` or `clean`), unless `--allow-mixed` (then it says so first).
@@ -17,17 +17,27 @@ FORMATS = {".json": "json", ".md": "md", ".html": "html", ".htm": "html"}
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("report", help="metrics, timings and images of a scene's run (json, md, html)")
     p.add_argument("scene", type=Path, help="scene folder")
-    p.add_argument("--format", choices=["json", "md", "html"], default=None, help="default: from -o, else md")
+    p.add_argument(
+        "--format",
+        choices=["json", "md", "html"],
+        default=None,
+        help="default: the suffix of -o FILE, else md (json without -o is printed)",
+    )
     p.add_argument(
         "-o",
         "--out",
         type=Path,
         default=None,
         help="a file (report.html, report.md, report.json: the format follows the suffix) or a folder "
-        "(default: json printed, md/html in WORKDIR/report)",
+        "(default: WORKDIR/report/)",
     )
     p.add_argument("--workdir", metavar="W", help="where artifacts are (default: SCENE/.go)")
     p.add_argument("--pipeline", metavar="FILE", help="pipeline.yaml (for the step order)")
+    p.add_argument(
+        "--open",
+        action="store_true",
+        help="open the report in the default browser (without --format / -o: the html report)",
+    )
     p.add_argument(
         "--allow-mixed",
         action="store_true",
@@ -46,7 +56,9 @@ def main(args: argparse.Namespace) -> int:
         raise GoError("no artifacts yet: run `go-pipeline run` on this scene first", wd)
     out: Path | None = args.out
     as_file = out is not None and out.suffix.lower() in FORMATS
-    fmt = args.format or (FORMATS[out.suffix.lower()] if as_file else "md")
+    fmt = args.format or (FORMATS[out.suffix.lower()] if as_file else ("html" if args.open else "md"))
+    if args.open and fmt == "json" and out is None:
+        raise GoError("--open: a json report without -o is printed, not written; use --format html")
     if as_file and FORMATS[out.suffix.lower()] != fmt:
         raise GoError(f"-o {out}: the suffix says {FORMATS[out.suffix.lower()]}, --format says {fmt}")
     report = build_report(args.scene, args.workdir, args.pipeline)
@@ -70,6 +82,8 @@ def main(args: argparse.Namespace) -> int:
 
         path = readable(atomic_write_text(out if as_file else out / "report.json", text + "\n"))
         print(path)
+        if args.open:
+            _open_in_browser(path)
         return 0
     from go_pipeline.reporting.render import write_html, write_markdown
 
@@ -80,4 +94,14 @@ def main(args: argparse.Namespace) -> int:
     from go_core.io.atomic import readable
 
     print(readable(path))
+    if args.open:
+        _open_in_browser(path)
     return 0
+
+
+def _open_in_browser(path: Path) -> None:
+    """Open ``path`` with the desktop's browser; says so (one line) when there is none to open it."""
+    import webbrowser
+
+    if not webbrowser.open(path.resolve().as_uri()):
+        print(f"note: no browser found to open {path}; open it yourself", file=sys.stderr)

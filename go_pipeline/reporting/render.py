@@ -215,7 +215,7 @@ def _tables(report: dict) -> tuple[list[str], list[list[str]], list[str], list[l
     step_rows = [
         [
             s["name"],
-            s["status"] + (f" ({s['reason']})" if s["reason"] else ""),
+            s["status"] + (f": {s['reason']}" if s["reason"] else ""),
             _fmt(s["wall_s"], ".2f"),
             _fmt(s["cpu_s"], ".2f"),
             _fmt(s["peak_mem_mb"], ".0f"),
