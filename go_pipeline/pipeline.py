@@ -242,6 +242,9 @@ class StepRules:
     version: str | None = None
     skip_if_skipped: tuple[str, ...] = ()
     skip_if_empty: Mapping[str, str] = field(default_factory=dict)
+    skip_if_param: Mapping[str, Mapping[str, str]] = field(
+        default_factory=dict
+    )  # {"step.param": {value: why}}
 
 
 def step_rules(spec: StepSpec, path: Path | str) -> StepRules:
@@ -251,7 +254,9 @@ def step_rules(spec: StepSpec, path: Path | str) -> StepRules:
 
     declared = declaration(spec.module)
     if declared is not None:
-        return StepRules(declared.version, declared.skip_if_skipped, declared.skip_if_empty)
+        return StepRules(
+            declared.version, declared.skip_if_skipped, declared.skip_if_empty, declared.skip_if_param
+        )
     source = _module_source(spec.module, path, spec.name)
     version = module_literal(source, "VERSION")
     if version is not None and not isinstance(version, (str, int)):

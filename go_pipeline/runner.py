@@ -40,6 +40,22 @@ class StepFailed(GoError):
     exit_code = 1
 
 
+def resume_note(checkpoint_dir: Path) -> str | None:
+    """What a step resumes from when an earlier, killed run left checkpoints for its key ("checkpoint 1000
+    (checkpoints/coarse/<key>)"), or None. The number is the newest checkpoint file's (ckpt_0001000.pt)."""
+    import re
+
+    found = (
+        [p for p in Path(checkpoint_dir).rglob("*") if p.is_file()] if Path(checkpoint_dir).is_dir() else []
+    )
+    if not found:
+        return None
+    newest = max(found, key=lambda p: (p.stat().st_mtime, p.name))
+    number = re.findall(r"\d+", newest.stem)
+    where = f"{checkpoint_dir.parent.parent.name}/{checkpoint_dir.parent.name}/{checkpoint_dir.name[:12]}"
+    return f"checkpoint {int(number[-1])} ({where})" if number else f"its checkpoints ({where})"
+
+
 def _build_note(results: list[StepResult]) -> str:
     """What part of a run's wall time was the one-time rasterizer compile (in no step's time)."""
     build = sum(float(r.record.get("rasterizer_build_s", 0.0)) for r in results if not r.cached)
@@ -69,6 +85,7 @@ class RunSummary:
     finished: str
     wall_s: float
     overrides: dict[str, Any] = field(default_factory=dict)  # the --set values ({"step.param": value})
+    status: str = "finished"  # "interrupted" / "failed": the run stopped before its end (history only)
 
     def step(self, name: str) -> StepResult:
         for s in self.steps:
@@ -227,10 +244,16 @@ def _input_hashes(
 
 
 def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
+    from go_pipeline.skipping import foreign_params
+
+    params = plan.params[name]
+    foreign = foreign_params(plan.rules[name].skip_if_param, plan.params)
+    if foreign:  # another step's param decides whether this step skips: part of its key
+        params = {**params, "_skip_if_param": foreign}
     return cache_key(
         name,
         plan.rules[name].version,
-        plan.params[name],
+        params,
         plan.seed,
         {k: v["content_hash"] for k, v in inputs.items()},
         code=plan.code[name].digest,
@@ -268,6 +291,7 @@ class _Run:
     lock_fd: int | None
     scene_hash: str | None = None
     done: dict[str, dict[str, Any]] = field(default_factory=dict)  # step -> the manifest of its artifact
+    results: list[StepResult] = field(default_factory=list)  # so far (an unfinished run's record)
 
 
 def run_pipeline(
@@ -391,7 +415,9 @@ def _run_locked(plan: _Plan, selection: _Selection, options: RunOptions, lock_fd
         steps = plan.pipeline.steps
         needs_scene = any(up == SCENE_INPUT for n in selection.steps for up in steps[n].inputs.values())
         run.scene_hash = _scene_hash(plan, cache_writable=True) if needs_scene else None
-        results = [_run_one(run, name, name in selection.force) for name in selection.steps]
+        for name in selection.steps:
+            run.results.append(_run_one(run, name, name in selection.force))
+        results = run.results
         results = [plan.recomputed.get(r.name, r) for r in results]
         _hash_cache(plan).save()  # model-file hashes found while keying the steps
         summary = RunSummary(
@@ -409,6 +435,8 @@ def _run_locked(plan: _Plan, selection: _Selection, options: RunOptions, lock_fd
     except BaseException as e:
         display.open_log()
         display.log.debug(f"run failed: {type(e).__name__}: {e}")  # the log file only
+        status = "interrupted" if isinstance(e, (KeyboardInterrupt, SystemExit)) else "failed"
+        _record_unfinished(run, started, t0, status)
         raise
     finally:
         display.close()
@@ -432,6 +460,9 @@ def _run_one(run: _Run, name: str, forced: bool) -> StepResult:
     skip = _runner_skip(run, name)
     if skip is None:
         run.display.log.info(f"  {name:<12} running  {key[:12]} ...")
+        resumed = resume_note(store.checkpoint_path(plan.workdir, name, key))
+        if resumed:
+            run.display.log.info(f"  {name:<12} resuming from {resumed}")
     tmp, ckpt = _work_dirs(plan, name, key)
     started = _utc_now()
     result = _launch(run, name, _job(run, name, inputs, tmp, ckpt), skip)
@@ -467,11 +498,13 @@ def _reuse(run: _Run, name: str, key: str, forced: bool) -> StepResult | None:
 
 def _runner_skip(run: _Run, name: str) -> dict[str, str] | None:
     """The record of a skip the runner decides without a worker (go_pipeline/skipping.py), or None."""
-    from go_pipeline.skipping import cascade_skip, param_skip
+    from go_pipeline.skipping import cascade_skip, foreign_param_skip, param_skip
 
     rules, spec = run.plan.rules[name], run.plan.pipeline.steps[name]
-    return cascade_skip(rules.skip_if_skipped, spec.inputs, run.done) or param_skip(
-        rules.skip_if_empty, run.plan.params[name]
+    return (
+        cascade_skip(rules.skip_if_skipped, spec.inputs, run.done)
+        or param_skip(rules.skip_if_empty, run.plan.params[name])
+        or foreign_param_skip(rules.skip_if_param, run.plan.params)
     )
 
 
@@ -724,6 +757,23 @@ def _new_log_path(workdir: Path) -> Path:
         p.unlink(missing_ok=True)
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")
     return logs / f"run-{stamp}.log"
+
+
+def _record_unfinished(run: _Run, started: str, t0: float, status: str) -> None:
+    """The history record of a run that stopped before its end (interrupted, a step failed), so
+    ``go-pipeline runs`` lists it. Never raises: the original error matters."""
+    plan = run.plan
+    try:
+        summary = RunSummary(
+            plan.scene_dir, plan.workdir, plan.profile, plan.seed, list(run.results), run.display.log_file,
+            started, _utc_now(), time.perf_counter() - t0, dict(plan.overrides), status,
+        )  # fmt: skip
+        from go_core.io.atomic import atomic_write_json
+
+        stamp = started.replace(":", "").replace("-", "")
+        atomic_write_json(plan.workdir / "runs" / f"run-{stamp}.json", summary.to_dict())
+    except Exception:  # noqa: BLE001 - a record that cannot be written must not hide the run's error
+        pass
 
 
 def _write_summary(workdir: Path, summary: RunSummary) -> None:

@@ -30,6 +30,29 @@ def param_skip(skip_if_empty: Mapping[str, str], params: dict[str, Any]) -> dict
     return None
 
 
+def foreign_params(skip_if_param: Mapping[str, Mapping[str, str]], params: dict[str, dict[str, Any]]) -> dict:
+    """The other steps' params a step's ``skip_if_param`` ({"step.param": {value: reason}}) reads, with their
+    values ({"repair.mode": "full"}): part of the step's cache key, so that its skipped and its real
+    artifact never share a key."""
+    out = {}
+    for dotted in skip_if_param:
+        step, param = dotted.split(".", 1)
+        out[dotted] = (params.get(step) or {}).get(param)
+    return out
+
+
+def foreign_param_skip(
+    skip_if_param: Mapping[str, Mapping[str, str]], params: dict[str, dict[str, Any]]
+) -> dict[str, str] | None:
+    """The record of a runner-decided skip when another step's param has a value that ``skip_if_param``
+    names (the repair chain's root under repair.mode no_repair), else None."""
+    for dotted, value in foreign_params(skip_if_param, params).items():
+        reason = skip_if_param[dotted].get(str(value))
+        if reason is not None:
+            return {"status": "skipped", "reason": reason, "worker": "none (skipped by the runner)"}
+    return None
+
+
 def short_reason(reason: str) -> str:
     """The first clause of a skip reason ("repair model weights missing: sd15 ..." -> its part before ':')."""
     return str(reason).split(":", 1)[0].strip() or "skipped"

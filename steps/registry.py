@@ -24,9 +24,12 @@ class StepDeclaration:
     sometimes: tuple[art.Artifact, ...] = ()  # written only in some runs (its info file says which)
     skip_if_skipped: tuple[str, ...] = ()  # input names: the runner skips the step when one of them skipped
     skip_if_empty: dict[str, str] = field(default_factory=dict)  # {param: reason}: skipped while it is empty
+    # {"step.param": {value: reason}}: skipped while another step's param has that value (in its cache key)
+    skip_if_param: dict[str, dict[str, str]] = field(default_factory=dict)
     version: str | None = None  # forces a rerun without a code change (its code is in the key anyway)
 
 
+NO_REPAIR_REASON = "no repair (repair.mode no_repair): the coarse model is the result"
 DEPTH_SKIP_REASON = "no depth model configured (depth.model_path is empty): the depth loss is off"
 
 STEPS: dict[str, StepDeclaration] = {
@@ -43,7 +46,11 @@ STEPS: dict[str, StepDeclaration] = {
     "go_pipeline.steps.coarse": StepDeclaration(
         p.CoarseParams, (art.GAUSSIANS, art.COARSE_INFO, art.CURVES, art.CAMERAS)
     ),
-    "go_pipeline.steps.weights": StepDeclaration(p.WeightsParams, (art.WEIGHTS_INFO,)),
+    # the "no repair" ablation: the runner skips the repair chain from its root (loo, noise_pairs, tune and
+    # repair follow by skip_if_skipped), no worker started
+    "go_pipeline.steps.weights": StepDeclaration(
+        p.WeightsParams, (art.WEIGHTS_INFO,), skip_if_param={"repair.mode": {"no_repair": NO_REPAIR_REASON}}
+    ),
     "go_pipeline.steps.loo": StepDeclaration(
         p.LooParams, (art.LOO_INFO, art.LOO_PAIRS), skip_if_skipped=("weights",)
     ),

@@ -52,6 +52,17 @@ def test_failed_later_run_keeps_the_cached_steps(toy):
     assert (toy.scene / ".go" / "artifacts" / "ingest").is_dir()
 
 
+def test_failed_run_is_listed_by_runs(toy):
+    """A run that stopped before its end (a step failed, Ctrl-C) is in the experiments table, saying so."""
+    base = ["--pipeline", str(toy.pipeline)]
+    assert toy.cli("run", str(toy.scene), *base, "--quiet").returncode == 0
+    assert toy.cli("run", str(toy.scene), *base, "--quiet", "--set", "train.fail_at=2").returncode == 1
+    data = json.loads(toy.cli("runs", str(toy.scene), *base, "--json").stdout)
+    assert [r["status"] for r in data["runs"]] == ["finished", "failed"]
+    table = toy.cli("runs", str(toy.scene), *base).stdout
+    assert "failed" in table
+
+
 def test_crashed_first_run_keeps_its_log(toy):
     """A step crash names the log holding its traceback, so that log must survive."""
     done = toy.cli("run", str(toy.scene), "--pipeline", str(toy.pipeline), "--set", "train.fail_at=2")

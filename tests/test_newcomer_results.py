@@ -195,3 +195,23 @@ def test_export_formats_param():
     ]
     with pytest.raises(SettingError):
         check_value(ExportParams, "formats", ["ply", "gltf"])
+
+
+def test_another_steps_param_skips_a_step_and_is_in_its_key(tmp_path):
+    from go_pipeline.skipping import foreign_param_skip, foreign_params
+
+    module = tmp_path / "step.py"
+    module.write_text('SKIP_IF_PARAM = {"repair.mode": {"no_repair": "no repair (repair.mode no_repair)"}}\n')
+    full = {"repair": {"mode": "full"}, "weights": {}}
+    ablation = {"repair": {"mode": "no_repair"}, "weights": {}}
+    assert foreign_params(str(module), full) == {"repair.mode": "full"}
+    assert foreign_param_skip(str(module), full) is None
+    assert foreign_param_skip(str(module), ablation)["reason"] == "no repair (repair.mode no_repair)"
+
+
+def test_weights_step_skips_under_the_no_repair_ablation():
+    from go_pipeline.skipping import foreign_param_skip
+
+    module = REPO / "steps" / "weights.py"
+    assert foreign_param_skip(str(module), {"repair": {"mode": "no_repair"}})["status"] == "skipped"
+    assert foreign_param_skip(str(module), {"repair": {"mode": "full"}}) is None

@@ -68,6 +68,18 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
     assert metrics["model"] == "repair" and metrics["repair_model"].startswith(f"compact:{DEFAULT_MODEL}")
 
+    # the "no repair" ablation runs none of the repair chain: the runner skips it from its root, no worker
+    summary = run_pipeline(
+        EXAMPLE, workdir=tmp_path / "work", profile="test", overrides={"repair.mode": "no_repair"}, quiet=True
+    )
+    steps = {s.name: s for s in summary.steps}
+    assert steps["coarse"].status == "cached"
+    for name in ("weights", "loo", "noise_pairs", "lora", "repair"):
+        assert steps[name].status == "skipped", name
+        assert steps[name].record["worker"] == "none (skipped by the runner)", name
+    metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
+    assert metrics["model"] == "coarse" and "repair.mode no_repair" in metrics["model_reason"]
+
 
 @pytest.mark.slow
 def test_refined_poses_flow_through_the_chain_and_eval_scores_them_as_cf(tmp_path, monkeypatch):

@@ -3,6 +3,7 @@ completes and its final artifacts have exactly the content hashes of an uninterr
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import signal
@@ -46,9 +47,10 @@ def start(toy, workdir, new_session=False) -> subprocess.Popen:
     )
 
 
-def finish(toy, workdir) -> None:
+def finish(toy, workdir):
     done = toy.cli("run", str(toy.scene), "--pipeline", str(toy.pipeline), "--workdir", str(workdir), *ARGS)
     assert done.returncode == 0, done.stderr
+    return done
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
@@ -86,9 +88,16 @@ def test_kill_mid_step_resumes_from_checkpoint(reference, tmp_path):
         assert time.monotonic() < deadline, "the step process outlived the killed CLI"
         time.sleep(0.01)
     assert store.artifact_dir(workdir, "train") is None  # killed before it finished
-    finish(toy, workdir)
+    done = finish(toy, workdir)
     manifest = store.load_manifest(store.artifact_dir(workdir, "train"))
     assert manifest["record"]["resumed_from"] >= 4  # really resumed mid-step
+    # ... and says so; the killed run is in the experiments table
+    said = [line for line in done.stderr.splitlines() if "resuming from checkpoint" in line]
+    assert len(said) == 1 and said[0].split()[0] == "train", done.stderr
+    runs = toy.cli(
+        "runs", str(toy.scene), "--pipeline", str(toy.pipeline), "--workdir", str(workdir), "--json"
+    )
+    assert [r["status"] for r in json.loads(runs.stdout)["runs"]] == ["killed", "finished"]
     assert content_hashes(workdir) == ref_hashes
 
 

@@ -1,7 +1,8 @@
 """``go-pipeline runs SCENE``: the experiments table of a work dir (like ``dvc exp show``): one row per run
 that did something, with the params that differ between the runs, the metrics of its result and its time.
 
-Read from ``WORKDIR/runs/run-*.json`` (written by every run that ran a step); a run's metrics come from its
+Read from ``WORKDIR/runs/run-*.json`` (written by every run that ran a step, and by every run that stopped
+before its end: status interrupted / failed); a run's metrics come from its
 eval artifact while that is still cached (``gc`` / ``clean --old`` delete the others: then "gone").
 """
 
@@ -9,6 +10,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +36,38 @@ def load_runs(workdir: Path) -> list[dict[str, Any]]:
             runs.append(json.loads(path.read_text()))
         except (OSError, ValueError):
             continue
+    runs += unrecorded_runs(workdir, {str(r.get("log_path")) for r in runs})
     return sorted(runs, key=lambda r: r.get("started", ""))
+
+
+LOG_STEP = re.compile(r"^\s+(\w+)\s+(ran|cached|skipped)\s+([0-9a-f]{12})\s")
+
+
+def unrecorded_runs(workdir: Path, logged: set[str]) -> list[dict[str, Any]]:
+    """Runs that left a log but no record: killed (kill -9, a closed terminal) before their end, or the one
+    running now. Their steps are read from the log's step lines."""
+    from go_pipeline.lock import WorkdirLock
+
+    logs = sorted(p for p in (workdir / "logs").glob("run-*.log") if str(p) not in logged)
+    running = WorkdirLock(workdir).holder_info() is not None
+    out = []
+    for i, log in enumerate(logs):
+        stamp = log.stem.removeprefix("run-")
+        try:
+            started = (
+                datetime.strptime(stamp, "%Y%m%dT%H%M%S.%fZ").strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+            )
+            lines = log.read_text(errors="replace").splitlines()
+        except (OSError, ValueError):
+            continue
+        steps = [
+            {"name": m[1], "cached": m[2] == "cached", "key": None}
+            for m in (LOG_STEP.match(line) for line in lines)
+            if m
+        ]
+        status = "running" if running and i == len(logs) - 1 else "killed"
+        out.append({"started": started, "status": status, "steps": steps, "log_path": str(log)})
+    return out
 
 
 def experiments(workdir: Path, pipeline) -> list[dict[str, Any]]:
@@ -44,13 +78,12 @@ def experiments(workdir: Path, pipeline) -> list[dict[str, Any]]:
     current_eval = store.read_ref(workdir, "eval")
     for run in load_runs(workdir):
         steps = {s["name"]: s for s in run.get("steps", [])}
-        try:
-            resolved = pipeline.resolve_params(run.get("profile"), run.get("overrides") or {})
-            params = {f"{st}.{k}": v for st, values in resolved.items() for k, v in values.items()}
-        except Exception:  # noqa: BLE001 - a run made with another pipeline.yaml: show what is known
-            params = {f"set {k}": v for k, v in (run.get("overrides") or {}).items()}
+        if run.get("status") in ("killed", "running"):  # known from its log only: no params
+            params = None
+        else:
+            params = _run_params(pipeline, run)
         metrics, model = None, None
-        if "eval" in steps:
+        if steps.get("eval", {}).get("artifact_dir"):
             path = Path(steps["eval"]["artifact_dir"]) / "metrics.json"
             if path.is_file():
                 data = json.loads(path.read_text())
@@ -63,6 +96,7 @@ def experiments(workdir: Path, pipeline) -> list[dict[str, Any]]:
                 "params": params,
                 "ran": [s["name"] for s in run.get("steps", []) if not s.get("cached")],
                 "wall_s": run.get("wall_s"),
+                "status": run.get("status", "finished"),
                 "metrics": metrics,
                 "model": model,
                 "eval_gone": "eval" in steps and metrics is None,
@@ -72,10 +106,20 @@ def experiments(workdir: Path, pipeline) -> list[dict[str, Any]]:
     return rows
 
 
+def _run_params(pipeline, run: dict[str, Any]) -> dict[str, Any]:
+    """A recorded run's resolved params, flattened ("step.param")."""
+    try:
+        resolved = pipeline.resolve_params(run.get("profile"), run.get("overrides") or {})
+    except Exception:  # noqa: BLE001 - a run made with another pipeline.yaml: show what is known
+        return {f"set {k}": v for k, v in (run.get("overrides") or {}).items()}
+    return {f"{st}.{k}": v for st, values in resolved.items() for k, v in values.items()}
+
+
 def differing(rows: list[dict[str, Any]]) -> list[str]:
     """The params whose value is not the same in every run."""
-    keys = sorted({k for r in rows for k in r["params"]})
-    return [k for k in keys if len({json.dumps(r["params"].get(k), sort_keys=True) for r in rows}) > 1]
+    known = [r for r in rows if r["params"] is not None]  # killed runs: params unknown
+    keys = sorted({k for r in known for k in r["params"]})
+    return [k for k in keys if len({json.dumps(r["params"].get(k), sort_keys=True) for r in known}) > 1]
 
 
 def main(args: argparse.Namespace) -> int:
@@ -101,17 +145,19 @@ def main(args: argparse.Namespace) -> int:
         return "n/a" if v is None else format(v, spec)
 
     head = ["run (started, UTC)", "profile", "seed", *diff, "steps ran", "wall s", "PSNR", "SSIM", "LPIPS*"]
+    head.append("status")
     table = [
         [
             ("* " if r["current"] else "  ") + r["id"][:19].replace("T", " "),
             str(r["profile"] or "-"),
             str(r["seed"]),
-            *[json.dumps(r["params"].get(k)) for k in diff],
+            *["?" if r["params"] is None else json.dumps(r["params"].get(k)) for k in diff],
             str(len(r["ran"])),
             "-" if r["wall_s"] is None else f"{r['wall_s']:.1f}",
             metric(r, "psnr", ".2f"),
             metric(r, "ssim", ".4f"),
             metric(r, "lpips_star", ".2f"),
+            r["status"],
         ]
         for r in rows
     ]
