@@ -48,17 +48,18 @@ def _missing_extra(excinfo) -> str | None:
     return f"needs the [{extra}] extra: pip install -e '.[{extra}]'" if extra else None
 
 
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_setup(item):
+def _skip_when_an_extra_is_missing():
     outcome = yield
     why = _missing_extra(outcome.excinfo)
     if why:
         outcome.force_exception(pytest.skip.Exception(why, _use_item_location=True))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_setup(item):
+    yield from _skip_when_an_extra_is_missing()
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_call(item):
-    outcome = yield
-    why = _missing_extra(outcome.excinfo)
-    if why:
-        outcome.force_exception(pytest.skip.Exception(why, _use_item_location=True))
+    yield from _skip_when_an_extra_is_missing()

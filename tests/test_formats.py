@@ -88,14 +88,26 @@ def test_morton_order_keeps_chunks_compact():
     assert extent(pts[order]) < 0.6 * extent(pts)
 
 
+def _round_trip(tmp_path, fmt: str):
+    """The model, its cameras, what spz-js reads back from its ``fmt`` file, and the attribute errors."""
+    g, cams = _model()
+    path = tmp_path / FILE_NAMES[fmt]
+    path.write_bytes(encode(g, fmt))
+    back = roundtrip.read_back(path)
+    return g, cams, back, roundtrip.attribute_errors(g, back)
+
+
+def _render_psnr(g, back, cams) -> float:
+    bg = torch.ones(3)
+    return roundtrip.compare(roundtrip.renders(back, cams, bg), roundtrip.renders(g, cams, bg), [None] * 2)[
+        "psnr"
+    ]
+
+
 @needs_reader
 def test_spz_read_by_spz_js_round_trips_within_the_quantisation(tmp_path):
-    g, cams = _model()
-    path = tmp_path / FILE_NAMES["spz"]
-    path.write_bytes(encode(g, "spz"))
-    back = roundtrip.read_back(path)
+    g, cams, back, err = _round_trip(tmp_path, "spz")
     assert len(back) == len(g) and back.sh_degree == 3
-    err = roundtrip.attribute_errors(g, back)
     assert err["position"]["max"] <= position_step() / 2 + 1e-6
     assert err["log_scale"]["max"] <= 1 / 32 + 1e-6
     assert err["opacity"]["max"] <= 1 / 255 + 1e-6
@@ -103,23 +115,15 @@ def test_spz_read_by_spz_js_round_trips_within_the_quantisation(tmp_path):
     assert err["quat_xyz"]["max"] <= 1 / 127.5  # 8 bits of x, y, z (w >= 0), the reader renormalises
     assert err["rotation_deg"]["mean"] < 1.5  # 1.08 deg here: w = sqrt(1 - |xyz|²) is coarse near w = 0
     assert err["sh_rest"]["max"] <= 8.5 / 128 + 1e-6  # 1/128 steps, then degree >= 2 on a 16/128 grid
-    bg = torch.ones(3)
-    psnr = roundtrip.compare(roundtrip.renders(back, cams, bg), roundtrip.renders(g, cams, bg), [None] * 2)
-    assert psnr["psnr"] > 35.0
+    assert _render_psnr(g, back, cams) > 35.0
 
 
 @needs_reader
 def test_compressed_ply_read_by_spz_js_round_trips(tmp_path):
-    g, cams = _model()
-    path = tmp_path / FILE_NAMES["compressed_ply"]
-    path.write_bytes(encode(g, "compressed_ply"))
-    back = roundtrip.read_back(path)
+    g, cams, back, err = _round_trip(tmp_path, "compressed_ply")
     assert len(back) == len(g)
-    err = roundtrip.attribute_errors(g, back)
     extent = (g.means.max(0).values - g.means.min(0).values).max().item()
     assert err["position"]["max"] <= extent / (2 * 1023) + 1e-6  # 10-11 bits within a chunk's bounds
     assert err["opacity"]["max"] <= 0.5 / 255 + 1e-6
     assert err["rotation_deg"]["max"] < 0.5  # smallest three, 10 bits each
-    bg = torch.ones(3)
-    psnr = roundtrip.compare(roundtrip.renders(back, cams, bg), roundtrip.renders(g, cams, bg), [None] * 2)
-    assert psnr["psnr"] > 35.0
+    assert _render_psnr(g, back, cams) > 35.0
