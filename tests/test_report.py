@@ -90,6 +90,19 @@ def test_report_cli_json(ran, capsys):
     validate_report(json.loads(capsys.readouterr().out))
 
 
+def test_report_open_writes_the_html_report_and_opens_it(ran, capsys, monkeypatch):
+    from pathlib import Path
+
+    from go_pipeline.cli import main
+
+    scene, wd, toy = ran
+    opened = []
+    monkeypatch.setattr("webbrowser.open", lambda url: opened.append(url) or True)
+    assert main(["report", str(scene), "--workdir", str(wd), "--pipeline", str(toy.pipeline), "--open"]) == 0
+    path = Path(capsys.readouterr().out.strip().splitlines()[-1])
+    assert path.name == "report.html" and path.is_file() and opened == [path.resolve().as_uri()]
+
+
 def test_report_without_artifacts_is_a_clear_error(tmp_path, capsys):
     from go_pipeline.cli import main
 
