@@ -127,7 +127,8 @@ class Viewer {
   // (default: the camera's own size, scaled to fit the page). Resolves once Spark has re-sorted.
   async showView(kind, index, width, height) {
     const cam = this.data.cameras[kind][index];
-    const scale = width ? 1 : Math.min(1, this.root.clientWidth / cam.width || 1);
+    // on the page: as wide as the report allows (at most 800 px); same aspect, so the same view
+    const scale = width ? 1 : Math.min(800, this.root.clientWidth || cam.width) / cam.width;
     this.resize(width || Math.round(cam.width * scale), height || Math.round(cam.height * scale));
     this.activeCamera = cam;
     const world = cameraToWorld(cam);
