@@ -5,6 +5,8 @@ import { createHash } from "node:crypto";
 import { copyFileSync, mkdirSync, readFileSync, writeFileSync } from "node:fs";
 import { build } from "esbuild";
 
+process.chdir(new URL(".", import.meta.url).pathname); // paths below are relative to js/
+
 const out = new URL("../go_pipeline/_resources/viewer/", import.meta.url);
 mkdirSync(out, { recursive: true });
 await build({
