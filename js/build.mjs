@@ -10,6 +10,7 @@ process.chdir(new URL(".", import.meta.url).pathname); // paths below are relati
 const out = new URL("../go_pipeline/_resources/viewer/", import.meta.url);
 mkdirSync(out, { recursive: true });
 await build({
+  absWorkingDir: process.cwd(),
   entryPoints: ["src/viewer.js"],
   bundle: true,
   minify: true,
