@@ -52,11 +52,17 @@ def read_back(path: Path):
         parts[name] = flat[at : at + length]
         at += length
     rest = parts["sh"].reshape(n, -1, 3)
-    sh = np.concatenate([parts["colors"].reshape(n, 1, 3), rest], axis=1)
     quats = parts["rotations"].reshape(n, 4)[:, [3, 0, 1, 2]]  # xyzw -> wxyz
+    means = parts["positions"].reshape(n, 3)
+    if path.suffix == ".spz":  # .spz holds RUB: back to go-pipeline's OpenCV (RDF) world
+        from go_core.formats.spz import FLIP_YZ, SH_FLIP_YZ
+
+        means, quats = means * FLIP_YZ, quats * np.array([1.0, 1.0, -1.0, -1.0])
+        rest = rest * SH_FLIP_YZ[: rest.shape[1], None]
+    sh = np.concatenate([parts["colors"].reshape(n, 1, 3), rest], axis=1).astype(np.float32)
     return Gaussians(
-        means=torch.from_numpy(parts["positions"].reshape(n, 3).copy()),
-        quats=torch.from_numpy(np.ascontiguousarray(quats)),
+        means=torch.from_numpy(np.ascontiguousarray(means, dtype=np.float32)),
+        quats=torch.from_numpy(np.ascontiguousarray(quats, dtype=np.float32)),
         log_scales=torch.from_numpy(parts["scales"].reshape(n, 3).copy()),
         opacity_logits=torch.from_numpy(parts["alphas"].copy()),
         sh=torch.from_numpy(np.ascontiguousarray(sh)),

@@ -13,8 +13,10 @@ Layout (little-endian; github.com/nianticlabs/spz, README "File Format"):
     sh         (shDim x 3) uint8 per point, coefficient-major with the channel inner, x * 128 + 128, degree 1
                on a 5-bit grid and higher degrees on a 4-bit grid (the reference library's choice)
 
-Coordinates are written as they are (the INRIA ``.ply``'s frame, OpenCV world), as readers of both formats
-expect (Spark, spz-js). Quantisation steps: positions 2^-fractionalBits, log scales 1/16, colours (f_dc)
+Coordinates: the format stores RUB (x right, y up, z back: OpenGL / three.js), the ``.ply`` and go-pipeline
+use RDF (OpenCV), so the writer turns the model 180 degrees about x (``rdf_to_rub``: y and z negated, the
+quaternion conjugated by that turn, the SH coefficients odd in y or z negated), as Niantic's converter does
+for a ``.ply``. Quantisation steps: positions 2^-fractionalBits, log scales 1/16, colours (f_dc)
 1/(0.15 * 255) = 0.026, opacity 1/255, quaternion components 1/127.5, SH 8/128 (degree 1) or 16/128.
 """
 
@@ -26,7 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from go_core.formats._arrays import to_arrays, to_uint8
+from go_core.formats._arrays import SplatArrays, to_arrays, to_uint8
 
 if TYPE_CHECKING:
     from go_core.gaussians import Gaussians
@@ -56,6 +58,21 @@ def fractional_bits_for(means: np.ndarray) -> int:
     return bits
 
 
+# sign of each SH coefficient (degree 1..3, go_core.sh order) under (x, y, z) -> (x, -y, -z)
+SH_FLIP_YZ = np.array([-1, -1, 1, -1, 1, 1, -1, 1, -1, 1, -1, -1, 1, -1, 1], dtype=np.float64)
+FLIP_YZ = np.array([1.0, -1.0, -1.0])
+
+
+def rdf_to_rub(a: SplatArrays) -> SplatArrays:
+    """The model turned 180 degrees about x: OpenCV (RDF) world <-> .spz's RUB (its own inverse)."""
+    k = a.sh_rest.shape[1]
+    return a._replace(
+        means=a.means * FLIP_YZ,
+        quats_wxyz=a.quats_wxyz * np.array([1.0, 1.0, -1.0, -1.0]),
+        sh_rest=a.sh_rest * SH_FLIP_YZ[:k, None],
+    )
+
+
 def _quantize_sh(x: np.ndarray, bits: int) -> np.ndarray:
     bucket = 1 << (8 - bits)
     q = np.round(x * 128.0 + 128.0)
@@ -66,7 +83,7 @@ def _quantize_sh(x: np.ndarray, bits: int) -> np.ndarray:
 def encode_spz(g: Gaussians, sh_degree: int | None = None) -> bytes:
     """``g`` as ``.spz`` bytes (SH truncated to ``sh_degree``, default min(g's degree, 3))."""
     degree = min(g.sh_degree if sh_degree is None else sh_degree, MAX_SH_DEGREE)
-    a = to_arrays(g.with_sh_degree(degree))
+    a = rdf_to_rub(to_arrays(g.with_sh_degree(degree)))
     n = a.means.shape[0]
     bits = fractional_bits_for(a.means)
     fixed = np.round(a.means * (1 << bits)).astype(np.int64).reshape(-1) & 0xFFFFFF
