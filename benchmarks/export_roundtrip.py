@@ -70,16 +70,28 @@ def read_back(path: Path):
 
 
 def match_order(original, decoded) -> torch.Tensor:
-    """Index of each decoded Gaussian's original (formats may reorder; nearest position, unique)."""
+    """Index of each decoded Gaussian's original by nearest position (for a format that reorders)."""
     from scipy.spatial import cKDTree
 
     _, idx = cKDTree(original.means.double().numpy()).query(decoded.means.double().numpy())
     return torch.from_numpy(idx)
 
 
-def attribute_errors(original, decoded) -> dict[str, dict[str, float]]:
-    """Largest and mean absolute round-trip error per attribute (rotation: angle in degrees)."""
-    o = original.select(match_order(original, decoded)).with_sh_degree(decoded.sh_degree)
+def written_order(original, fmt: str) -> torch.Tensor:
+    """Index of each written Gaussian's original: .spz keeps the order, the compressed .ply writes along
+    its Morton curve (go_core.formats.compressed_ply.morton_order)."""
+    if fmt == "compressed_ply":
+        from go_core.formats.compressed_ply import morton_order
+
+        return torch.from_numpy(morton_order(original.means.double().numpy()))
+    return torch.arange(len(original))
+
+
+def attribute_errors(original, decoded, order: torch.Tensor | None = None) -> dict[str, dict[str, float]]:
+    """Largest and mean absolute round-trip error per attribute (rotation: angle in degrees); ``order``:
+    the original of each decoded Gaussian (default: by nearest position)."""
+    order = match_order(original, decoded) if order is None else order
+    o = original.select(order).with_sh_degree(decoded.sh_degree)
     qa, qb = o.normalized_quats().double(), decoded.normalized_quats().double()
     angle = torch.rad2deg(2 * torch.acos((qa * qb).sum(-1).abs().clamp(max=1.0)))
     sign = torch.where((qa * qb).sum(-1, keepdim=True) < 0, -1.0, 1.0).double()
@@ -130,6 +142,19 @@ def ground_truth(view, background: torch.Tensor) -> tuple[torch.Tensor, torch.Te
     return img * m + background.double() * (1 - m), m[..., 0] > 0.5
 
 
+def spz_range_report(g) -> dict[str, int]:
+    """How many Gaussians have a value beyond what .spz can hold (clamped by any writer): log scales outside
+    [-10, 5.94], base colours outside [0, 1] (|f_dc| > 0.5 / 0.15), higher SH outside [-1, 1)."""
+    from go_core.formats.spz import COLOR_SCALE
+
+    ls, dc, rest = g.log_scales.double(), g.sh[:, 0].double(), g.sh[:, 1:].double()
+    return {
+        "log_scale": int(((ls < -10) | (ls > 255 / 16 - 10)).any(1).sum()),
+        "sh_dc": int((dc.abs() > 0.5 / COLOR_SCALE).any(1).sum()),
+        "sh_rest": int((rest.abs() > 1).flatten(1).any(1).sum()),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("scene", type=Path)
@@ -166,11 +191,12 @@ def main(argv: list[str] | None = None) -> int:
                 "bytes": path.stat().st_size,
                 "ply_bytes": ply_bytes,
                 "gaussians_read": len(back),
-                "errors": attribute_errors(g, back),
+                "errors": attribute_errors(g, back, written_order(g, fmt)),
                 "readback_vs_gt": compare(decoded, list(gt), list(masks)),
                 "readback_vs_original_render": compare(decoded, original, list(masks)),
             }
     result["spz"]["position_step"] = position_step()
+    result["spz"]["outside_the_format_range"] = spz_range_report(g)
     text = json.dumps(result, indent=2, sort_keys=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -94,7 +94,7 @@ def _round_trip(tmp_path, fmt: str):
     path = tmp_path / FILE_NAMES[fmt]
     path.write_bytes(encode(g, fmt))
     back = roundtrip.read_back(path)
-    return g, cams, back, roundtrip.attribute_errors(g, back)
+    return g, cams, back, roundtrip.attribute_errors(g, back, roundtrip.written_order(g, fmt))
 
 
 def _render_psnr(g, back, cams) -> float:
