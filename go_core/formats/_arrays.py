@@ -35,6 +35,6 @@ def to_arrays(g: Gaussians) -> SplatArrays:
     )
 
 
-def to_uint8(x: np.ndarray) -> np.ndarray:
-    """Round and clamp to 0..255."""
+def byte_field(x: np.ndarray) -> np.ndarray:
+    """Values already on a 0..255 scale as the formats' byte fields: rounded, clamped to 0..255."""
     return np.clip(np.round(x), 0, 255).astype(np.uint8)

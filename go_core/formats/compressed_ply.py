@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from go_core.formats._arrays import to_arrays, to_uint8
+from go_core.formats._arrays import byte_field, to_arrays
 
 if TYPE_CHECKING:
     from go_core.gaussians import Gaussians
@@ -119,5 +119,5 @@ def encode_compressed_ply(g: Gaussians) -> bytes:
         header += [f"element sh {n}"] + [f"property uchar f_rest_{i}" for i in range(rest.shape[1])]
     body = chunks.tobytes() + vertex.tobytes()
     if rest.shape[1]:
-        body += to_uint8((rest / 8.0 + 0.5) * 255.0).tobytes()
+        body += byte_field((rest / 8.0 + 0.5) * 255.0).tobytes()
     return ("\n".join(header) + "\nend_header\n").encode("ascii") + body

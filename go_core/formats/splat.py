@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from go_core.formats._arrays import to_arrays, to_uint8
+from go_core.formats._arrays import byte_field, to_arrays
 
 if TYPE_CHECKING:
     from go_core.gaussians import Gaussians
@@ -31,8 +31,8 @@ def encode_splat(g: Gaussians) -> bytes:
     rows["position"] = a.means[order]
     rows["scale"] = np.exp(a.log_scales[order])
     rgb = (0.5 + SH_C0 * a.sh_dc[order]) * 255.0
-    rows["rgba"] = to_uint8(np.concatenate([rgb, a.opacity[order, None] * 255.0], axis=1))
-    rows["rot"] = to_uint8(a.quats_wxyz[order] * 128.0 + 128.0)
+    rows["rgba"] = byte_field(np.concatenate([rgb, a.opacity[order, None] * 255.0], axis=1))
+    rows["rot"] = byte_field(a.quats_wxyz[order] * 128.0 + 128.0)
     return rows.tobytes()
 
 

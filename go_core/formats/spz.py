@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from go_core.formats._arrays import SplatArrays, to_arrays, to_uint8
+from go_core.formats._arrays import SplatArrays, byte_field, to_arrays
 
 if TYPE_CHECKING:
     from go_core.gaussians import Gaussians
@@ -88,10 +88,10 @@ def encode_spz(g: Gaussians, sh_degree: int | None = None) -> bytes:
     bits = fractional_bits_for(a.means)
     fixed = np.round(a.means * (1 << bits)).astype(np.int64).reshape(-1) & 0xFFFFFF
     positions = np.stack([fixed & 0xFF, (fixed >> 8) & 0xFF, (fixed >> 16) & 0xFF], axis=1).astype(np.uint8)
-    alphas = to_uint8(a.opacity * 255.0)
-    colors = to_uint8(a.sh_dc * (COLOR_SCALE * 255.0) + 0.5 * 255.0)
-    scales = to_uint8((a.log_scales + 10.0) * 16.0)
-    rotations = to_uint8(a.quats_wxyz[:, 1:] * 127.5 + 127.5)
+    alphas = byte_field(a.opacity * 255.0)
+    colors = byte_field(a.sh_dc * (COLOR_SCALE * 255.0) + 0.5 * 255.0)
+    scales = byte_field((a.log_scales + 10.0) * 16.0)
+    rotations = byte_field(a.quats_wxyz[:, 1:] * 127.5 + 127.5)
     rest = a.sh_rest.reshape(n, -1)  # [N, (K-1)*3], coefficient-major, channel inner
     sh = np.concatenate(
         [_quantize_sh(rest[:, :9], SH_BITS_DEGREE1), _quantize_sh(rest[:, 9:], SH_BITS_REST)], axis=1
