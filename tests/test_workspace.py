@@ -132,7 +132,13 @@ def test_result_lines_name_the_model_metrics_and_paths(tmp_path):
     lines = outputs.result_lines(None, files, "go-example/basket", "example", cwd=tmp_path)
     assert lines[0] == "result: the coarse model (repair skipped)"
     assert lines[1] == "  8 test views: PSNR 19.94 dB, SSIM 0.7150, LPIPS* 22.93"
-    assert "  model.ply      model.ply" in lines and "  turntable.gif  turntable.gif" in lines
+    assert lines[2] == "what you got, in ./:"  # one folder, then each file with what it is
+    assert [line.split()[0] for line in lines[3:-1]] == [
+        "model.ply",
+        "report.html",
+        "turntable.gif",
+        "metrics.json",
+    ]
     assert lines[-1].startswith("next: open report.html in a browser, or go-pipeline run go-example/basket")
 
 
