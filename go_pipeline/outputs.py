@@ -96,6 +96,20 @@ def publish(
     return {n: out / n for n in names}
 
 
+def published_outputs(workdir: Path, manifests: dict[str, dict]) -> dict[str, str]:
+    """The files of ``WORKDIR/outputs`` (stable names) when they were published from these artifacts, so the
+    report names ``outputs/model.ply`` rather than a path under artifacts/<step>/<key>/; else empty."""
+    out = workdir / OUTPUTS_DIR
+    try:
+        index = json.loads((out / INDEX).read_text())
+    except (OSError, ValueError):
+        return {}
+    keys = index.get("keys", {})
+    if any(manifests.get(step, {}).get("key") != key for step, key in keys.items()):
+        return {}
+    return {name: str(out / name) for name in sorted(index.get("files", {})) if (out / name).is_file()}
+
+
 def result_lines(
     summary, files: dict[str, Path], scene_arg: str, profile: str | None, cwd: Path | None = None
 ) -> list[str]:

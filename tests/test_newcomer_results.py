@@ -197,21 +197,21 @@ def test_export_formats_param():
         check_value(ExportParams, "formats", ["ply", "gltf"])
 
 
-def test_another_steps_param_skips_a_step_and_is_in_its_key(tmp_path):
+def test_another_steps_param_skips_a_step_and_is_in_its_key():
     from go_pipeline.skipping import foreign_param_skip, foreign_params
 
-    module = tmp_path / "step.py"
-    module.write_text('SKIP_IF_PARAM = {"repair.mode": {"no_repair": "no repair (repair.mode no_repair)"}}\n')
+    rule = {"repair.mode": {"no_repair": "no repair (repair.mode no_repair)"}}
     full = {"repair": {"mode": "full"}, "weights": {}}
     ablation = {"repair": {"mode": "no_repair"}, "weights": {}}
-    assert foreign_params(str(module), full) == {"repair.mode": "full"}
-    assert foreign_param_skip(str(module), full) is None
-    assert foreign_param_skip(str(module), ablation)["reason"] == "no repair (repair.mode no_repair)"
+    assert foreign_params(rule, full) == {"repair.mode": "full"}  # in the key (runner._key_for)
+    assert foreign_param_skip(rule, full) is None
+    assert foreign_param_skip(rule, ablation)["reason"] == "no repair (repair.mode no_repair)"
 
 
 def test_weights_step_skips_under_the_no_repair_ablation():
     from go_pipeline.skipping import foreign_param_skip
+    from go_pipeline.steps.registry import declaration
 
-    module = REPO / "steps" / "weights.py"
-    assert foreign_param_skip(str(module), {"repair": {"mode": "no_repair"}})["status"] == "skipped"
-    assert foreign_param_skip(str(module), {"repair": {"mode": "full"}}) is None
+    rule = declaration("go_pipeline.steps.weights").skip_if_param
+    assert foreign_param_skip(rule, {"repair": {"mode": "no_repair"}})["status"] == "skipped"
+    assert foreign_param_skip(rule, {"repair": {"mode": "full"}}) is None

@@ -74,7 +74,7 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
     )
     steps = {s.name: s for s in summary.steps}
     assert steps["coarse"].status == "cached"
-    for name in ("weights", "loo", "noise_pairs", "lora", "repair"):
+    for name in ("weights", "loo", "noise_pairs", "tune", "repair"):
         assert steps[name].status == "skipped", name
         assert steps[name].record["worker"] == "none (skipped by the runner)", name
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())

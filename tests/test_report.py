@@ -103,6 +103,21 @@ def test_report_open_writes_the_html_report_and_opens_it(ran, capsys, monkeypatc
     assert path.name == "report.html" and path.is_file() and opened == [path.resolve().as_uri()]
 
 
+def test_report_names_the_published_outputs_not_the_artifact_paths(ran, capsys):
+    from go_pipeline import store
+    from go_pipeline.cli import main
+    from go_pipeline.outputs import publish
+
+    scene, wd, toy = ran
+    keys = {s: store.read_ref(wd, s) for s in ("scene", "coarse", "eval")}
+    publish(scene, wd, keys, pipeline_path=toy.pipeline)
+    args = ["report", str(scene), "--workdir", str(wd), "--pipeline", str(toy.pipeline), "--format", "json"]
+    assert main(args) == 0
+    report = json.loads(capsys.readouterr().out)
+    validate_report(report)
+    assert report["outputs"]["metrics.json"] == str(wd / "outputs" / "metrics.json")
+
+
 def test_report_without_artifacts_is_a_clear_error(tmp_path, capsys):
     from go_pipeline.cli import main
 

@@ -79,7 +79,7 @@ def tune_compact(
         from go_core.compact.lora import add_conv_lora
         from go_core.extras import require_extra
 
-        require_extra("sd15", "lora.compact_method lora (peft adapters)")
+        require_extra("sd15", "tune.compact_method lora (peft adapters)")
 
         add_conv_lora(model.net, settings.rank, seed)
     elif settings.method != "full":

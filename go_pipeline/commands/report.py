@@ -62,6 +62,9 @@ def main(args: argparse.Namespace) -> int:
     if as_file and FORMATS[out.suffix.lower()] != fmt:
         raise GoError(f"-o {out}: the suffix says {FORMATS[out.suffix.lower()]}, --format says {fmt}")
     report = build_report(args.scene, args.workdir, args.pipeline)
+    from go_pipeline.outputs import published_outputs
+
+    report["outputs"] = published_outputs(wd, store.current_manifests(wd))  # outputs/, not artifacts/<key>/
     if report["warnings"]:
         if not args.allow_mixed:
             raise GoError(

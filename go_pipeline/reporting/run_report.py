@@ -177,7 +177,6 @@ def build_report(
         "metrics": _metrics_block(metrics),
         "images": images,
         "files": files,
-        "outputs": published_outputs(wd, manifests),
         "warnings": mixed_run_problems(manifests),
         "settings": _settings(wd),
     }
@@ -192,22 +191,6 @@ def _settings(workdir: Path) -> dict[str, Any] | None:
     except Exception:  # noqa: BLE001 - a damaged params.yaml must not hide the report
         return None
     return saved.to_dict() if saved is not None else None
-
-
-def published_outputs(workdir: Path, manifests: dict[str, dict]) -> dict[str, str]:
-    """The files of ``WORKDIR/outputs`` (stable names) when they were published from these artifacts, so the
-    report names ``outputs/model.ply`` rather than a path under artifacts/<step>/<key>/; else empty."""
-    from go_pipeline.outputs import INDEX, OUTPUTS_DIR
-
-    out = workdir / OUTPUTS_DIR
-    try:
-        index = json.loads((out / INDEX).read_text())
-    except (OSError, ValueError):
-        return {}
-    keys = index.get("keys", {})
-    if any(manifests.get(step, {}).get("key") != key for step, key in keys.items()):
-        return {}
-    return {name: str(out / name) for name in sorted(index.get("files", {})) if (out / name).is_file()}
 
 
 def mixed_run_problems(manifests: dict[str, dict]) -> list[str]:
