@@ -9,6 +9,9 @@ change results, the model files its params name, and the LPIPS weights in the sh
   the key.
 * LPIPS weights: steps with an ``lpips_net``/``lpips_nets`` param get the hash of those nets' safetensors
   files in ``$GO_PIPELINE_CACHE/lpips`` (``absent`` when not fetched: fetching them later reruns the step).
+* Cached models: a ``salient_model`` param (``mask.salient_model: u2netp``) gets the hash of that model's
+  file in the weights cache (``absent`` when not fetched: ``mask.method: auto`` then falls back to GrabCut,
+  and fetching u2netp later reruns the step).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from go_pipeline.hashing import FileHashCache, combine_file_hashes, folder_hashe
 DEPENDENCIES = ("torch", "numpy", "pycolmap", "opencv-contrib-python-headless")
 MODEL_PARAM_SUFFIXES = ("_path", "_model")
 LPIPS_PARAMS = ("lpips_net", "lpips_nets")
+CACHED_MODEL_PARAMS = ("salient_model",)
 
 
 @lru_cache(maxsize=1)
@@ -59,6 +63,13 @@ def path_hash(path: Path, cache: FileHashCache | None) -> str:
     return "missing"
 
 
+def cached_model_file(name: str) -> Path | None:
+    """The weights-cache file of a model named by a ``CACHED_MODEL_PARAMS`` param (None: unknown name)."""
+    from go_core.salient_weights import u2netp_path
+
+    return {"u2netp": u2netp_path()}.get(name)
+
+
 def lpips_weight_hashes(nets: list[str], cache: FileHashCache | None) -> dict[str, str]:
     hashes = {}
     for net in sorted(set(nets)):
@@ -86,6 +97,14 @@ def external_inputs(params: dict[str, Any], cache: FileHashCache | None) -> dict
             nets.extend(str(v) for v in value)
     if nets:
         result["lpips_weights"] = lpips_weight_hashes(nets, cache)
+    cached = {}
+    for name in CACHED_MODEL_PARAMS:
+        value = params.get(name)
+        path = cached_model_file(value) if isinstance(value, str) else None
+        if path is not None:
+            cached[value] = path_hash(path, cache) if path.is_file() else "absent"
+    if cached:
+        result["cached_models"] = cached
     return result
 
 
@@ -94,10 +113,11 @@ def describe_external_changes(old: dict[str, Any] | None, new: dict[str, Any]) -
     if old is None:
         return []
     reasons = []
-    for group in ("libraries", "model_files", "lpips_weights"):
+    what = {"libraries": "library", "model_files": "model file", "lpips_weights": "LPIPS weights",
+            "cached_models": "cached model"}  # fmt: skip
+    for group in what:
         a, b = old.get(group) or {}, new.get(group) or {}
         for item in sorted(set(a) | set(b)):
             if a.get(item) != b.get(item):
-                what = {"libraries": "library", "model_files": "model file", "lpips_weights": "LPIPS weights"}
                 reasons.append(f"{what[group]} {item} changed")
     return reasons

@@ -1,9 +1,13 @@
 """mask: one object mask per training view.
 
 ``method``: ``provided`` (the scene's mask files or image alpha, validated), ``grabcut`` (OpenCV GrabCut
-seeded from the image border), ``onnx`` (a salient-object ONNX model from ``onnx_model``, a local path), or
-``auto``: provided when every training view has a mask, else onnx when ``onnx_model`` is set, else grabcut.
-The method used per view is recorded (``ctx.record(method=..., views=[...])``).
+seeded from the image border), ``u2netp`` (the auto masks: the u2netp salient-object model from the weights
+cache and the post-processing of go_core.auto_mask, with the ``auto_*`` params), ``onnx`` (a salient-object
+ONNX model from ``onnx_model``, a local path), or ``auto``: provided when every training view has a mask,
+else onnx when ``onnx_model`` is set, else u2netp when it is in the weights cache, else grabcut (with a
+warning that says how to fetch u2netp). ``object_box`` (``x0,y0,x1,y1@PHOTO``, any photo of the scene)
+tells u2netp where the object is (go_core.object_hint). The method used per view is recorded
+(``ctx.record(method=..., views=[...])``).
 """
 
 from __future__ import annotations
@@ -18,35 +22,80 @@ from go_core.scene.masking import OnnxSegmenter, grabcut_mask, mask_stats, valid
 if TYPE_CHECKING:
     from go_pipeline.steps.params import MaskParams
 
-METHODS = ("auto", "provided", "grabcut", "onnx")
+METHODS = ("auto", "provided", "grabcut", "onnx", "u2netp")
+
+
+def _choose(method: str, have_all: bool, onnx_model: str, log) -> str:
+    """The method ``auto`` stands for here (see the module docstring)."""
+    if method != "auto":
+        return method
+    if have_all:
+        return "provided"
+    if onnx_model:
+        return "onnx"
+    from go_core.salient_weights import u2netp_path
+    from go_core.io.weights_cache import FETCH_COMMAND
+
+    if u2netp_path().is_file():
+        return "u2netp"
+    log.warning("auto masks: u2netp is not in the weights cache (%s); GrabCut instead. `%s` gets it",
+                u2netp_path(), FETCH_COMMAND)  # fmt: skip
+    return "grabcut"
+
+
+def _masker(method: str, params: MaskParams, scene):
+    """A function view -> mask for the computed methods (None for ``provided``)."""
+    if method == "grabcut":
+        return lambda i, v: grabcut_mask(v.image, params.grabcut_iterations, params.grabcut_border)
+    if method == "onnx":
+        if not params.onnx_model:
+            raise PipelineError("mask.method=onnx needs mask.onnx_model (a local .onnx path)")
+        segmenter = OnnxSegmenter(Path(params.onnx_model), params.onnx_normalization)
+        return lambda i, v: segmenter(v.image)
+    if method == "u2netp":
+        from go_core.auto_mask import AutoMaskSettings, auto_mask, load_segmenter
+        from go_core.object_hint import parse_object_box
+
+        segmenter = load_segmenter()
+        settings = AutoMaskSettings(params.auto_threshold, params.auto_crop_margin, refine=params.auto_refine)
+        hint = parse_object_box(params.object_box) if params.object_box else None
+        boxes = _hint_boxes(scene, hint)
+        return lambda i, v: auto_mask(v.image, segmenter, settings, boxes[i])
+    return None
+
+
+def _hint_boxes(scene, hint) -> list:
+    """The object box of every training view (None without a hint), from the box drawn on one photo."""
+    if hint is None:
+        return [None] * len(scene.train)
+    from go_core.auto_mask import carry_box
+
+    views = scene.train + scene.test
+    found = [i for i, v in enumerate(views) if hint.matches(v.name) or hint.matches(str(v.source or ""))]
+    if not found:
+        raise SceneError(f"mask.object_box names photo {hint.photo!r}, which is not a view of this scene")
+    return carry_box(hint, views[found[0]], scene.train)
 
 
 def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
-    method = params.method
-    onnx_model = params.onnx_model
     scene = art.read_scene(inputs["scene"])
     views = scene.train
     have_all = all(v.mask is not None for v in views)
-    if method == "auto":
-        method = "provided" if have_all else ("onnx" if onnx_model else "grabcut")
+    method = _choose(params.method, have_all, params.onnx_model, ctx.log)
     if method == "provided" and not have_all:
         missing = [v.name for v in views if v.mask is None]
         raise SceneError(f"mask.method=provided but views {missing} have no mask file or alpha channel")
-    if method == "onnx" and not onnx_model:
-        raise PipelineError("mask.method=onnx needs mask.onnx_model (a local .onnx path)")
-    segmenter = OnnxSegmenter(Path(onnx_model), params.onnx_normalization) if method == "onnx" else None
+    masker = _masker(method, params, scene)
 
     masks, info = [], []
     bar = ctx.progress(len(views), "masks")
-    for v in views:
+    for i, v in enumerate(views):
         label = str(v.source or v.name)
-        if method == "provided":
+        if masker is None:
             m = v.mask
             validate_mask(m, v.image.shape[:2], label)
-        elif method == "grabcut":
-            m = grabcut_mask(v.image, params.grabcut_iterations, params.grabcut_border)
         else:
-            m = segmenter(v.image)
+            m = masker(i, v)
         if float((m > 0.5).mean()) == 0.0:
             raise SceneError(f"the {method} mask is empty: no object found", path=label)
         masks.append(m)
@@ -54,6 +103,7 @@ def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
         bar.advance()
     bar.close()
     art.write_masks(ctx.out_dir, masks)
-    summary = {"method": method, "onnx_model": onnx_model if method == "onnx" else None, "views": info}
+    summary = {"method": method, "onnx_model": params.onnx_model if method == "onnx" else None,
+               "object_box": params.object_box or None, "views": info}  # fmt: skip
     art.write_json(ctx.out_dir, art.MASK_INFO, summary)
     ctx.record(method=method, views=len(masks), foreground=[i["foreground_fraction"] for i in info])

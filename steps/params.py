@@ -44,10 +44,20 @@ class SceneParams:
 
 @dataclass
 class MaskParams:
-    method: Literal["auto", "provided", "grabcut", "onnx"] = setting(
+    method: Literal["auto", "provided", "grabcut", "onnx", "u2netp"] = setting(
         "auto",
-        doc="auto | provided | grabcut | onnx",
+        doc="auto | provided | grabcut | onnx | u2netp (auto: provided, else onnx_model, else u2netp when "
+        "fetched, else grabcut)",
     )
+    salient_model: Literal["u2netp"] = setting(
+        "u2netp", doc="the weights-cache model of method u2netp (and auto); its file is in the cache key"
+    )
+    auto_threshold: float = setting(0.5, gt=0, lt=1, doc="u2netp: saliency above this is the object")
+    auto_crop_margin: float = setting(
+        0.08, ge=-1, doc="u2netp: second pass on a square crop this much wider than the object (<0: off)"
+    )
+    auto_refine: Literal["none", "grabcut"] = setting("none", doc="u2netp: GrabCut seeded by the saliency")
+    object_box: str = setting("", doc="x0,y0,x1,y1@PHOTO: a box around the object on one photo (u2netp)")
     onnx_model: str = setting("", doc="local path of an ISNet/U2-Net ONNX export")
     onnx_normalization: Literal["imagenet", "isnet"] = setting(
         "imagenet",

@@ -4,9 +4,9 @@
   and a non-empty foreground;
 * ``grabcut``: OpenCV GrabCut initialised with the image border as sure background (the object is assumed
   to be inside, away from the border, as in object-centric captures);
-* ``onnx``: a salient-object segmentation model (e.g. an ISNet / U²-Net ONNX export) from a LOCAL file, run
-  with onnxruntime on CPU. The model takes one [1,3,S,S] float image and its first output is a saliency
-  map [1,1,s,s] (any s); it is min-max normalised and resized back to the image.
+* ``onnx``: a salient-object segmentation model (u2netp from the weights cache, or an ISNet / U²-Net ONNX
+  export from a LOCAL file), run with onnxruntime on CPU. The model takes one [1,3,S,S] float image and its
+  first output is a saliency map [1,1,s,s] (any s); it is min-max normalised and resized back to the image.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from go_core import artifact_files as artifacts
-from go_core.errors import MissingWeightsError, SceneError
+from go_core.errors import MissingWeightsError, SceneError, first_line
 from go_core.io.images import to_uint8
 
 NORMALISATIONS = {
@@ -61,11 +61,18 @@ def grabcut_mask(image: np.ndarray, iterations: int = 5, border: float = 0.03) -
 
 @dataclass
 class OnnxSegmenter:
-    """A salient-object ONNX model from a local path (onnxruntime, CPU)."""
+    """A salient-object ONNX model (onnxruntime, CPU): ``u2netp`` from the weights cache (the auto masks,
+    go_core.salient_weights) or a user's ISNet / U²-Net export from a local path.
+
+    Pre- and post-processing are rembg's (the reference runtime of these exports, and U²-Net's own
+    ``ToTensorLab``): the RGB image is resized to the model's square input with Pillow's Lanczos filter,
+    divided by its maximum (not by 255), normalised by mean/std; the first output (U²-Net's fused ``d1``)
+    is min-max normalised over the map and resized back with Lanczos."""
 
     path: Path
     normalisation: str = "imagenet"
     size: int = 0  # input side; 0 = read from the model (fallback 320)
+    threads: int = 2
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -79,25 +86,44 @@ class OnnxSegmenter:
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = 2
-        self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        opts.intra_op_num_threads = self.threads
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types for unreadable models
+            raise MissingWeightsError(f"not a loadable ONNX model ({first_line(exc)})", self.path) from exc
         inp = self.session.get_inputs()[0]
         self.input_name = inp.name
         if not self.size:
             dims = [d for d in inp.shape[2:] if isinstance(d, int)]
             self.size = int(dims[0]) if dims else 320
 
-    def __call__(self, image: np.ndarray) -> np.ndarray:
-        h, w = image.shape[:2]
+    def model_input(self, image: np.ndarray) -> np.ndarray:
+        """[1,3,S,S] float32: Lanczos resize, divide by the maximum, mean/std normalisation."""
+        from PIL import Image
+
+        side = (self.size, self.size)
+        rgb = Image.fromarray(to_uint8(image)[..., :3]).resize(side, Image.Resampling.LANCZOS)
+        x = np.asarray(rgb, np.float64)
+        x = x / max(float(x.max()), 1e-6)
         mean, std = NORMALISATIONS[self.normalisation]
-        x = cv2.resize(image.astype(np.float32), (self.size, self.size), interpolation=cv2.INTER_AREA)
-        x = (x - np.asarray(mean, np.float32)) / np.asarray(std, np.float32)
-        x = x.transpose(2, 0, 1)[None].astype(np.float32)
-        out = self.session.run(None, {self.input_name: x})[0]
+        x = (x - np.asarray(mean)) / np.asarray(std)
+        return x.transpose(2, 0, 1)[None].astype(np.float32)
+
+    def raw(self, image: np.ndarray) -> np.ndarray:
+        """The model's min-max normalised saliency at its own resolution [s, s] float32."""
+        out = self.session.run(None, {self.input_name: self.model_input(image)})[0]
         sal = np.asarray(out, np.float32).reshape(out.shape[-2], out.shape[-1])
         lo, hi = float(sal.min()), float(sal.max())
-        sal = (sal - lo) / (hi - lo) if hi > lo else np.zeros_like(sal)
-        return np.clip(cv2.resize(sal, (w, h), interpolation=cv2.INTER_LINEAR), 0.0, 1.0).astype(np.float32)
+        return (sal - lo) / (hi - lo) if hi > lo else np.zeros_like(sal)
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """Saliency [H,W] float32 in [0, 1] of an RGB image (uint8, or float in [0, 1])."""
+        from PIL import Image
+
+        h, w = image.shape[:2]
+        sal = Image.fromarray(self.raw(image)).resize((w, h), Image.Resampling.LANCZOS)
+        return np.clip(np.asarray(sal, np.float32), 0.0, 1.0)
 
 
 def mask_stats(mask: np.ndarray) -> dict:

@@ -1,0 +1,128 @@
+"""Auto masks for photos without alpha: the u2netp salient-object model (go_core.salient_weights) and the
+post-processing chosen by measured IoU on ``photos/ethiopian_head`` (benchmarks/photo_masks.py,
+docs/photos_masks.md).
+
+Public API (used by the ``mask`` step and by the photo-folder path):
+
+* ``load_segmenter()``: the u2netp model from the weights cache (one MissingWeightsError naming the file
+  when it is missing or corrupt);
+* ``auto_mask(image, segmenter, settings, box)``: one RGB photo (uint8 [H,W,3], or float in [0, 1]) → mask
+  float32 [H,W] in {0, 1}; ``box`` (optional, x0,y0,x1,y1 pixels) says where the object is in this photo.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from go_core.mask_post import Box, box_mask, fill_holes, grabcut_refine, largest_component
+from go_core.scene.masking import OnnxSegmenter
+from go_core.object_hint import ObjectBox
+
+HINT_WIDEN = 0.1  # a carried box grows by this fraction of its size on each side
+
+
+@dataclass(frozen=True)
+class AutoMaskSettings:
+    """How a saliency map becomes a mask (the ``mask`` step's ``auto_*`` params)."""
+
+    threshold: float = 0.5  # saliency above this is the object
+    crop_margin: float = 0.08  # second pass on a square crop around the first mask, this much wider (<0: off)
+    largest_component: bool = True  # keep only the biggest 8-connected region
+    fill_holes: bool = True  # fill background regions enclosed by the object
+    refine: str = "none"  # "grabcut": GrabCut seeded by the saliency map (see mask_post.grabcut_refine)
+
+
+def load_segmenter(root: Path | None = None, threads: int = 2) -> OnnxSegmenter:
+    """The u2netp model from the weights cache, SHA-256 checked."""
+    from go_core.salient_weights import check_u2netp
+
+    return OnnxSegmenter(check_u2netp(root), "imagenet", threads=threads)
+
+
+def bounding_box(mask: np.ndarray) -> Box | None:
+    """(x0, y0, x1, y1) of a bool mask's True pixels (x1, y1 exclusive); None when it is empty."""
+    ys, xs = np.nonzero(mask)
+    if ys.size == 0:
+        return None
+    return float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)
+
+
+def square_crop(box: Box, margin: float, shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """The square (x0, y0, x1, y1) around ``box``, ``margin`` × its longer side wider on each side, shifted
+    (and shrunk) to fit an image of ``shape`` (H, W)."""
+    h, w = shape
+    x0, y0, x1, y1 = box
+    side = int(round(min(max(x1 - x0, y1 - y0) * (1.0 + 2.0 * margin), h, w)))
+    cx, cy = (x0 + x1) / 2.0, (y0 + y1) / 2.0
+    left = int(round(min(max(cx - side / 2.0, 0.0), w - side)))
+    top = int(round(min(max(cy - side / 2.0, 0.0), h - side)))
+    return left, top, left + side, top + side
+
+
+def saliency(
+    image: np.ndarray, segmenter: OnnxSegmenter, settings: AutoMaskSettings, box: Box | None = None
+) -> np.ndarray:
+    """Saliency [H,W] in [0, 1]. The model sees the whole photo at its input size; then (``crop_margin``
+    ≥ 0) a square crop around the first pass's largest region, or around ``box`` when one is given (the
+    model then never sees the whole photo), which shows the object at a higher resolution. Zero outside
+    the crop."""
+    shape = image.shape[:2]
+    if box is None:
+        first = segmenter(image)
+        if settings.crop_margin < 0:
+            return first
+        box = bounding_box(largest_component(first > settings.threshold))
+        if box is None:
+            return first
+    x0, y0, x1, y1 = square_crop(box, max(settings.crop_margin, 0.0), shape)
+    out = np.zeros(shape, np.float32)
+    out[y0:y1, x0:x1] = segmenter(image[y0:y1, x0:x1])
+    return out
+
+
+def auto_mask(
+    image: np.ndarray,
+    segmenter: OnnxSegmenter,
+    settings: AutoMaskSettings = AutoMaskSettings(),
+    box: Box | None = None,
+) -> np.ndarray:
+    """The object mask float32 [H,W] in {0, 1} of one RGB photo; ``box``: the object's region in it."""
+    sal = saliency(image, segmenter, settings, box)
+    outside = None if box is None else ~box_mask(sal.shape, box)
+    if outside is not None:
+        sal = np.where(outside, 0.0, sal).astype(np.float32)
+    if settings.refine == "grabcut":
+        mask = grabcut_refine(image, sal, outside=outside)
+    elif settings.refine == "none":
+        mask = sal > settings.threshold
+    else:
+        raise ValueError(f"refine must be 'none' or 'grabcut', got {settings.refine!r}")
+    if settings.largest_component:
+        mask = largest_component(mask)
+    if settings.fill_holes:
+        mask = fill_holes(mask)
+    return mask.astype(np.float32)
+
+
+def widen_box(box: Box, fraction: float) -> Box:
+    """``box`` grown by ``fraction`` of its width/height on each side."""
+    x0, y0, x1, y1 = box
+    dx, dy = (x1 - x0) * fraction, (y1 - y0) * fraction
+    return x0 - dx, y0 - dy, x1 + dx, y1 + dy
+
+
+def carry_box(hint: ObjectBox, ref_view, views: list, widen: float = HINT_WIDEN) -> list[Box]:
+    """The box drawn on ``ref_view`` (a scene View) carried to ``views`` without poses: the same place
+    relative to each image's size (a turntable, or a photographer who keeps the object framed alike),
+    ``widen`` × its size wider on each side, since the object's outline changes from view to view."""
+    h, w = ref_view.image.shape[:2]
+    x0, y0, x1, y1 = hint.pixels(w, h)
+    frac = (x0 / w, y0 / h, x1 / w, y1 / h)
+    out = []
+    for v in views:
+        vh, vw = v.image.shape[:2]
+        out.append(widen_box((frac[0] * vw, frac[1] * vh, frac[2] * vw, frac[3] * vh), widen))
+    return out

@@ -1,0 +1,86 @@
+"""The mask step's auto path: u2netp when it is in the weights cache, GrabCut (with a warning) when it is
+not, one error naming the file when it is corrupt; the object box, named by any photo of the scene."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from go_core.errors import MissingWeightsError, SceneError
+from go_core.salient_weights import u2netp_path
+from go_core.scene.artifact import save_scene_artifact
+from go_core.scene.types import Scene, View
+from go_pipeline.pipeline import step_params
+from tests._scene_helpers import ring_cameras
+from tests._tiny_repair import FakeCtx
+
+pytestmark = pytest.mark.usefixtures("single_thread")
+W, H = 120, 80
+
+
+def _photo(seed: int) -> np.ndarray:
+    """A red disc (the object) right of centre and a smaller blue one at the left, on grey."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:H, :W]
+    img = np.full((H, W, 3), 0.55, np.float32) + rng.normal(0, 0.02, (H, W, 3)).astype(np.float32)
+    img[(yy - 40) ** 2 + (xx - 70) ** 2 < 24**2] = (0.9, 0.15, 0.1)
+    img[(yy - 40) ** 2 + (xx - 18) ** 2 < 12**2] = (0.1, 0.2, 0.85)
+    return np.clip(img, 0, 1)
+
+
+def _scene(tmp_path):
+    cams = ring_cameras(6, W, H, f=60.0)
+    views = [View(c, _photo(i), None, source=f"images/{c.name}.jpg") for i, c in enumerate(cams)]
+    out = tmp_path / "scene"
+    save_scene_artifact(Scene(tmp_path / "raw", "nerf", views[:4], views[4:]), out)
+    return {"scene": out}
+
+
+def _run(tmp_path, **params):
+    from go_pipeline.steps import mask
+
+    ctx = FakeCtx(tmp_path, "mask")
+    mask.run(ctx, _scene(tmp_path), step_params(mask.__name__, params))
+    info = json.loads((ctx.out_dir / "mask.json").read_text())
+    masks = np.load(ctx.out_dir / "masks.npz")
+    return ctx, info, [masks[k] for k in sorted(masks.files)]
+
+
+def test_auto_without_u2netp_falls_back_to_grabcut_and_says_how_to_fetch(tmp_path, monkeypatch, caplog):
+    monkeypatch.setenv("GO_PIPELINE_CACHE", str(tmp_path / "empty-cache"))
+    with caplog.at_level(logging.WARNING):
+        ctx, info, masks = _run(tmp_path, method="auto")
+    assert info["method"] == "grabcut" and ctx.records["method"] == "grabcut"
+    assert "u2netp is not in the weights cache" in caplog.text and "go-pipeline weights fetch" in caplog.text
+    with pytest.raises(MissingWeightsError, match=r"u2netp\.onnx: .*not in the cache"):
+        _run(tmp_path, method="u2netp")
+
+
+def test_a_corrupt_u2netp_is_an_error_not_a_fallback(tmp_path, monkeypatch):
+    monkeypatch.setenv("GO_PIPELINE_CACHE", str(tmp_path / "cache"))
+    path = u2netp_path()
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"\0" * 100)
+    with pytest.raises(MissingWeightsError, match=rf"{path}: the auto-mask model u2netp is corrupt"):
+        _run(tmp_path, method="auto")
+
+
+def test_auto_uses_u2netp_and_the_box_picks_the_object(tmp_path):
+    if not u2netp_path().is_file():
+        pytest.skip("u2netp is not in the weights cache (`go-pipeline weights fetch`)")
+    yy, xx = np.mgrid[:H, :W]
+    red = (yy - 40) ** 2 + (xx - 70) ** 2 < 24**2
+    blue = (yy - 40) ** 2 + (xx - 18) ** 2 < 12**2
+    _, info, masks = _run(tmp_path / "plain", method="auto")
+    assert info["method"] == "u2netp" and len(masks) == 4
+    for m in masks:
+        assert (m[red] > 0.5).mean() > 0.9 and (m[blue] > 0.5).mean() < 0.1
+    _, info, masks = _run(tmp_path / "box", method="auto", object_box="4,26,33,55@v5.jpg")  # a test view
+    assert info["object_box"] == "4,26,33,55@v5.jpg"
+    for m in masks:
+        assert (m[blue] > 0.5).mean() > 0.9 and (m[red] > 0.5).mean() < 0.1
+    with pytest.raises(SceneError, match="names photo 'nope.jpg', which is not a view"):
+        _run(tmp_path / "bad", method="u2netp", object_box="4,26,33,55@nope.jpg")
