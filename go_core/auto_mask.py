@@ -114,15 +114,52 @@ def widen_box(box: Box, fraction: float) -> Box:
     return x0 - dx, y0 - dy, x1 + dx, y1 + dy
 
 
-def carry_box(hint: ObjectBox, ref_view, views: list, widen: float = HINT_WIDEN) -> list[Box]:
-    """The box drawn on ``ref_view`` (a scene View) carried to ``views`` without poses: the same place
-    relative to each image's size (a turntable, or a photographer who keeps the object framed alike),
-    ``widen`` × its size wider on each side, since the object's outline changes from view to view."""
-    h, w = ref_view.image.shape[:2]
+def carry_box(
+    hint: ObjectBox, ref_shape: tuple[int, int], shapes: list[tuple[int, int]], widen: float = HINT_WIDEN
+) -> list[Box]:
+    """The box drawn on the photo of ``ref_shape`` (H, W, as the pipeline holds it) carried to photos of
+    ``shapes`` without poses: the same place relative to each image's size (a turntable, or a photographer
+    who keeps the object framed alike), ``widen`` × its size wider on each side, since the object's outline
+    changes from view to view."""
+    h, w = ref_shape
     x0, y0, x1, y1 = hint.pixels(w, h)
-    frac = (x0 / w, y0 / h, x1 / w, y1 / h)
     out = []
-    for v in views:
-        vh, vw = v.image.shape[:2]
-        out.append(widen_box((frac[0] * vw, frac[1] * vh, frac[2] * vw, frac[3] * vh), widen))
+    for vh, vw in shapes:
+        sx, sy = vw / w, vh / h
+        out.append(widen_box((x0 * sx, y0 * sy, x1 * sx, y1 * sy), widen))
+    return out
+
+
+def box_region(box: Box, ref, cameras: list) -> np.ndarray:
+    """The box drawn on camera ``ref``'s image as a 3D region: the box's frustum between the depths
+    ``z ± r`` in ``ref``, where z is the depth of the point closest to every camera's optical axis (the
+    object's centre for a capture around it) and r half the box's longer side at that depth (an object
+    about as deep as it is wide). Returns its 8 corners [8,3] in world coordinates."""
+    from go_core.camera import look_at_point
+
+    centre = look_at_point(cameras)
+    z = float((ref.world_to_cam[:3, :3] @ centre + ref.world_to_cam[:3, 3])[2])
+    if z <= 0:
+        raise ValueError(f"the cameras' common centre is behind {ref.name}")
+    x0, y0, x1, y1 = box
+    r = 0.5 * max(x1 - x0, y1 - y0) / float(ref.K[0, 0]) * z
+    pix = np.array([[x, y, 1.0] for x in (x0, x1) for y in (y0, y1)])
+    rays = pix @ np.linalg.inv(ref.K).T  # camera-frame points at depth 1
+    local = np.concatenate([rays * (z - r), rays * (z + r)])
+    c2w = ref.cam_to_world
+    return local @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def carry_box_with_poses(box: Box, ref, cameras: list, widen: float = HINT_WIDEN) -> list[Box | None]:
+    """The box drawn on camera ``ref``'s image carried to ``cameras`` through their poses: the bounding
+    box of the projected 3D region (``box_region``), ``widen`` × its size wider on each side; None for a
+    camera that sees part of the region from behind (no box: that view is masked without the hint)."""
+    corners = box_region(box, ref, cameras)
+    out: list[Box | None] = []
+    for cam in cameras:
+        uv, depth = cam.project(corners)
+        if (depth <= 0).any():
+            out.append(None)
+            continue
+        out.append(widen_box((uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()), widen))
     return out

@@ -74,7 +74,7 @@ def _hint_boxes(scene, hint) -> list:
     found = [i for i, v in enumerate(views) if hint.matches(v.name) or hint.matches(str(v.source or ""))]
     if not found:
         raise SceneError(f"mask.object_box names photo {hint.photo!r}, which is not a view of this scene")
-    return carry_box(hint, views[found[0]], scene.train)
+    return carry_box(hint, views[found[0]].image.shape[:2], [v.image.shape[:2] for v in scene.train])
 
 
 def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:

@@ -169,3 +169,26 @@ def test_a_box_keeps_the_object_and_drops_what_is_outside():
     iou = lambda a, b: (a & b).sum() / (a | b).sum()  # noqa: E731
     assert iou(plain, big) > 0.8 and not (plain & small).any()
     assert iou(boxed, small) > 0.8 and not (boxed & big).any()
+
+
+def test_a_box_carried_through_poses_covers_the_object_in_every_view():
+    """A ball at the cameras' common centre: its box on one view, carried as a 3D region, contains the
+    ball's outline in every other view and is not much larger (the region is as deep as it is wide)."""
+    from go_core.auto_mask import carry_box_with_poses
+    from tests._scene_helpers import ring_cameras
+
+    cams = ring_cameras(8, 200, 150, f=180.0, elevation=0.5)
+    rng = np.random.default_rng(0)
+    ball = rng.normal(size=(4000, 3))
+    ball = 0.4 * ball / np.linalg.norm(ball, axis=1, keepdims=True) + np.array([0.05, -0.05, 0.1])
+
+    def outline(cam):
+        uv, _ = cam.project(ball)
+        return uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()
+
+    boxes = carry_box_with_poses(outline(cams[0]), cams[0], cams, widen=0.05)
+    for cam, box in zip(cams, boxes, strict=True):
+        x0, y0, x1, y1 = outline(cam)
+        assert box[0] <= x0 and box[1] <= y0 and box[2] >= x1 and box[3] >= y1, cam.name
+        area = (box[2] - box[0]) * (box[3] - box[1])
+        assert area < 4.0 * (x1 - x0) * (y1 - y0), cam.name  # a cube around a ball, seen obliquely
