@@ -6,7 +6,7 @@
 Methods (the product's code; ``reference/`` is read for scoring and for the simulated user's box only):
 * ``grabcut``: GrabCut seeded by the image border (``mask.method: grabcut``, the baseline);
 * ``u2netp_raw``: u2netp on the whole photo at 320², threshold 0.5, nothing else;
-* ``auto``: ``go_core.auto_mask.auto_mask`` with the default settings, no hint;
+* ``auto``: ``go_core.scene.auto_mask.auto_mask`` with the default settings, no hint;
 * ``auto_refine``: the same with ``refine="grabcut"``;
 * ``auto_box``: with the one hint, a box on ``--hint-photo`` carried to every photo at the same place
   (``carry_box``: no poses);
@@ -27,10 +27,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from go_core.auto_mask import AutoMaskSettings, auto_mask, carry_box, carry_box_with_poses, load_segmenter
 from go_core.camera import Camera
-from go_core.masking import grabcut_mask
-from go_core.object_hint import ObjectBox
+from go_core.scene.auto_mask import (
+    AutoMaskSettings,
+    auto_mask,
+    carry_box,
+    carry_box_with_poses,
+    load_segmenter,
+)
+from go_core.scene.masking import grabcut_mask
+from go_core.scene.object_hint import ObjectBox
 
 METHODS = ("grabcut", "u2netp_raw", "auto", "auto_refine", "auto_box", "auto_box_poses")
 

@@ -65,7 +65,7 @@ def path_hash(path: Path, cache: FileHashCache | None) -> str:
 
 def cached_model_file(name: str) -> Path | None:
     """The weights-cache file of a model named by a ``CACHED_MODEL_PARAMS`` param (None: unknown name)."""
-    from go_core.salient_weights import u2netp_path
+    from go_core.scene.salient_weights import u2netp_path
 
     return {"u2netp": u2netp_path()}.get(name)
 

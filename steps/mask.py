@@ -1,13 +1,13 @@
 """mask: one object mask per training view.
 
 ``method``: ``provided`` (the scene's mask files or image alpha, validated), ``grabcut`` (OpenCV GrabCut
-seeded from the image border), ``u2netp`` (the auto masks: the u2netp salient-object model from the weights
-cache and the post-processing of go_core.auto_mask, with the ``auto_*`` params), ``onnx`` (a salient-object
-ONNX model from ``onnx_model``, a local path), or ``auto``: provided when every training view has a mask,
-else onnx when ``onnx_model`` is set, else u2netp when it is in the weights cache, else grabcut (with a
-warning that says how to fetch u2netp). ``object_box`` (``x0,y0,x1,y1@PHOTO``, any photo of the scene)
-tells u2netp where the object is (go_core.object_hint). The method used per view is recorded
-(``ctx.record(method=..., views=[...])``).
+seeded from the image border), ``u2netp`` (the auto masks: the u2netp salient-object model from the
+weights cache and the post-processing of go_core.scene.auto_mask, with the ``auto_*`` params), ``onnx``
+(a salient-object ONNX model from ``onnx_model``, a local path), or ``auto``: provided when every training
+view has a mask, else onnx when ``onnx_model`` is set, else u2netp when it is in the weights cache, else
+grabcut (with a warning that says how to fetch u2netp). ``object_box`` (``x0,y0,x1,y1@PHOTO``, any photo
+of the scene) tells u2netp where the object is (go_core.scene.object_hint). The method used per view is
+recorded (``ctx.record(method=..., views=[...])``).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ def _choose(method: str, have_all: bool, onnx_model: str, log) -> str:
         return "provided"
     if onnx_model:
         return "onnx"
-    from go_core.salient_weights import u2netp_path
     from go_core.io.weights_cache import FETCH_COMMAND
+    from go_core.scene.salient_weights import u2netp_path
 
     if u2netp_path().is_file():
         return "u2netp"
@@ -53,8 +53,8 @@ def _masker(method: str, params: MaskParams, scene):
         segmenter = OnnxSegmenter(Path(params.onnx_model), params.onnx_normalization)
         return lambda i, v: segmenter(v.image)
     if method == "u2netp":
-        from go_core.auto_mask import AutoMaskSettings, auto_mask, load_segmenter
-        from go_core.object_hint import parse_object_box
+        from go_core.scene.auto_mask import AutoMaskSettings, auto_mask, load_segmenter
+        from go_core.scene.object_hint import parse_object_box
 
         segmenter = load_segmenter()
         settings = AutoMaskSettings(params.auto_threshold, params.auto_crop_margin, refine=params.auto_refine)
@@ -68,7 +68,7 @@ def _hint_boxes(scene, hint) -> list:
     """The object box of every training view (None without a hint), from the box drawn on one photo."""
     if hint is None:
         return [None] * len(scene.train)
-    from go_core.auto_mask import carry_box
+    from go_core.scene.auto_mask import carry_box
 
     views = scene.train + scene.test
     found = [i for i, v in enumerate(views) if hint.matches(v.name) or hint.matches(str(v.source or ""))]

@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from go_core import salient_weights as sw
-from go_core.auto_mask import AutoMaskSettings, auto_mask, bounding_box, load_segmenter, square_crop
 from go_core.errors import MissingWeightsError, SceneError
-from go_core.mask_post import box_mask, fill_holes, grabcut_refine, largest_component
-from go_core.object_hint import ObjectBox, find_object_box, parse_object_box, read_object_box
+from go_core.scene import salient_weights as sw
+from go_core.scene.auto_mask import AutoMaskSettings, auto_mask, bounding_box, load_segmenter, square_crop
+from go_core.scene.mask_post import box_mask, fill_holes, grabcut_refine, largest_component
+from go_core.scene.object_hint import ObjectBox, find_object_box, parse_object_box, read_object_box
 
 pytestmark = pytest.mark.usefixtures("single_thread")
 REFERENCE = Path(__file__).parent / "data" / "u2netp_reference.npz"
@@ -174,7 +174,7 @@ def test_a_box_keeps_the_object_and_drops_what_is_outside():
 def test_a_box_carried_through_poses_covers_the_object_in_every_view():
     """A ball at the cameras' common centre: its box on one view, carried as a 3D region, contains the
     ball's outline in every other view and is not much larger (the region is as deep as it is wide)."""
-    from go_core.auto_mask import carry_box_with_poses
+    from go_core.scene.auto_mask import carry_box_with_poses
     from tests._scene_helpers import ring_cameras
 
     cams = ring_cameras(8, 200, 150, f=180.0, elevation=0.5)

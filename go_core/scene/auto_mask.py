@@ -1,6 +1,6 @@
-"""Auto masks for photos without alpha: the u2netp salient-object model (go_core.salient_weights) and the
+"""Auto masks for photos without alpha: the u2netp salient-object model (``salient_weights``) and the
 post-processing chosen by measured IoU on ``photos/ethiopian_head`` (benchmarks/photo_masks.py,
-docs/photos_masks.md).
+docs/photo_masks.md).
 
 Public API (used by the ``mask`` step and by the photo-folder path):
 
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from go_core.mask_post import Box, box_mask, fill_holes, grabcut_refine, largest_component
+from go_core.scene.mask_post import Box, box_mask, fill_holes, grabcut_refine, largest_component
 from go_core.scene.masking import OnnxSegmenter
-from go_core.object_hint import ObjectBox
+from go_core.scene.object_hint import ObjectBox
 
 HINT_WIDEN = 0.1  # a carried box grows by this fraction of its size on each side
 
@@ -37,7 +37,7 @@ class AutoMaskSettings:
 
 def load_segmenter(root: Path | None = None, threads: int = 2) -> OnnxSegmenter:
     """The u2netp model from the weights cache, SHA-256 checked."""
-    from go_core.salient_weights import check_u2netp
+    from go_core.scene.salient_weights import check_u2netp
 
     return OnnxSegmenter(check_u2netp(root), "imagenet", threads=threads)
 

@@ -5,7 +5,7 @@ beside the photos: ``{"photo": "DSC_0007.jpg", "box": [x0, y0, x1, y1]}``. Coord
 photo as stored in its file (x right, y down, x1/y1 exclusive), or fractions of its width/height when all
 four are ≤ 1. PHOTO is the photo's file name or stem.
 
-How the box reaches the other photos is ``go_core.auto_mask``'s business (with or without camera poses).
+How the box reaches the other photos is ``go_core.scene.auto_mask``'s business (with or without camera poses).
 """
 
 from __future__ import annotations

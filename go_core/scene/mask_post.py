@@ -1,6 +1,6 @@
 """Post-processing of a salient-object map into an object mask: threshold, largest connected component,
 hole filling, a box restriction, and GrabCut refinement seeded by the map (the choices and their measured
-effect: docs/photos_masks.md)."""
+effect: docs/photo_masks.md)."""
 
 from __future__ import annotations
 
