@@ -102,17 +102,26 @@ def test_profiles_are_checked_against_the_class(tmp_path):
         load_pipeline(path)
 
 
-def test_pipeline_yaml_values_are_checked_too(tmp_path):
-    text = (REPO / "pipeline.yaml").read_text().replace("      num_points: 20000", "      num_points: 0", 1)
+def _with_hull_params(tmp_path, params: str):
+    """The packaged pipeline.yaml with ``params: {...}`` (values a user changes) added to the hull step."""
+    hull = "    inputs: {scene: scene, mask: mask}\n"
+    text = (REPO / "pipeline.yaml").read_text()
+    assert text.count(hull) == 1
     path = tmp_path / "pipeline.yaml"
-    path.write_text(text)
+    path.write_text(text.replace(hull, hull + f"    params: {params}\n"))
+    return path
+
+
+def test_pipeline_yaml_values_are_checked_too(tmp_path):
     with pytest.raises(PipelineError, match=r"step 'hull': param num_points: must be >= 1, got 0$"):
-        load_pipeline(path)
-    path.write_text(
-        (REPO / "pipeline.yaml").read_text().replace("      num_points: 20000", "      num_pts: 5", 1)
-    )
+        load_pipeline(_with_hull_params(tmp_path, "{num_points: 0}"))
     with pytest.raises(PipelineError, match=r"step 'hull': 'num_pts' is not a setting of HullParams"):
-        load_pipeline(path)
+        load_pipeline(_with_hull_params(tmp_path, "{num_pts: 5}"))
+    changed = load_pipeline(_with_hull_params(tmp_path, "{num_points: 7}"))
+    assert (
+        changed.steps["hull"].params["num_points"] == 7
+        and changed.resolve_params()["hull"]["num_points"] == 7
+    )
 
 
 def test_loo_and_repair_receive_the_coarse_settings(pipeline):
