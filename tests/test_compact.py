@@ -190,24 +190,24 @@ def test_tuning_lowers_the_loss_on_held_back_pairs(upstream, tmp_path, tiny_cach
 def test_killed_compact_lora_resumes_to_the_same_weights(upstream, tmp_path, tiny_cache, monkeypatch, method):
     from safetensors.torch import load_file
 
-    from go_core.compact import tuning
+    from go_core.io.checkpoint import Checkpoints
 
     root, dirs = upstream
     params = {**LORA, "compact_method": method}
     full = _tune(tmp_path / "a", dirs, params)
-    original, saved = tuning._save, []
+    original, saved = Checkpoints.save_tensors, []
 
-    def save_then_die(directory, tensors, meta, step, keep=2):
-        original(directory, tensors, meta, step, keep)
+    def save_then_die(self, step, fingerprint, tensors, meta):
+        original(self, step, fingerprint, tensors, meta)
         saved.append(step)
         if step == 4:
             raise KeyboardInterrupt("simulated kill after the step-4 checkpoint")
 
-    monkeypatch.setattr(tuning, "_save", save_then_die)
+    monkeypatch.setattr(Checkpoints, "save_tensors", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         _tune(tmp_path / "b", dirs, params)
     assert saved == [2, 4]
-    monkeypatch.setattr(tuning, "_save", original)
+    monkeypatch.setattr(Checkpoints, "save_tensors", original)
     resumed = _tune(tmp_path / "b", dirs, params)
     assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
     a = load_file(str(full.out_dir / "compact.safetensors"))

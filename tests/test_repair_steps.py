@@ -81,22 +81,29 @@ def test_noise_pairs_step_fixes_config(upstream):
     assert (dirs["noise_pairs"] / "preview.png").is_file()
 
 
-def test_without_weights_lora_and_repair_skip_with_the_message(upstream, tmp_path):
+def test_without_weights_the_runner_skips_tune_and_repair(upstream, tmp_path):
+    """sd15 chosen without its weights: the weights step says why, in full, once; the runner then skips tune
+    and repair without a worker (their declarations in steps/registry.py), and the final model is coarse."""
     from go_core import artifacts
-    from go_pipeline.steps import repair
+    from go_pipeline.skipping import cascade_skip, write_skipped_outputs
+    from go_pipeline.steps.registry import STEPS
 
     _, dirs, _ = upstream
-    ctx = _tune(tmp_path, dirs, {})
-    info = json.loads((ctx.out_dir / "tune.json").read_text())
-    assert info["status"] == "skipped" and ctx.records["status"] == "skipped"
-    assert "Stable Diffusion 1.5" in info["reason"] and "GO_SD15_PATH" in info["reason"]
-    assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["tune.json"]
-    rctx = FakeCtx(tmp_path, "repair")
-    repair.run(rctx, {**dirs, "tune": ctx.out_dir}, step_params(repair.__name__, REPAIR))
-    rinfo = json.loads((rctx.out_dir / "repair.json").read_text())
-    assert rinfo["status"] == "skipped" and "Stable Diffusion 1.5" in rinfo["reason"]
-    assert not (rctx.out_dir / "gaussians.npz").exists()
-    folder, used, _ = artifacts.final_model(dirs["coarse"], rctx.out_dir)
+    wctx_dir = run_weights_step(tmp_path / "w", {})
+    winfo = json.loads((wctx_dir / "weights.json").read_text())
+    assert winfo["status"] == "missing" and "Stable Diffusion 1.5" in winfo["reason"]
+    assert "GO_SD15_PATH" in winfo["reason"]
+    done = {"weights": {"record": {"status": "skipped", "reason": winfo["reason"]}}}
+    for step, upstream_input in (("tune", "weights"), ("repair", "tune")):
+        declared = STEPS[f"go_pipeline.steps.{step}"]
+        record = cascade_skip(declared.skip_if_skipped, {upstream_input: upstream_input}, done)
+        assert record["status"] == "skipped"
+        assert record["reason"] == "repair model weights missing (see the weights step)"
+        out = tmp_path / step
+        write_skipped_outputs(out, tuple(a.file for a in declared.outputs), record, step)
+        assert sorted(p.name for p in out.iterdir()) == [declared.outputs[0].file]
+        done[step] = {"record": record}
+    folder, used, _ = artifacts.final_model(dirs["coarse"], tmp_path / "repair")
     assert used == "coarse" and folder == dirs["coarse"]
 
 
@@ -112,25 +119,25 @@ def test_configured_but_wrong_weights_raise_one_clear_error(upstream, tmp_path):
 
 def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monkeypatch):
     from go_core.diffusion.lora import read_lora
-    from go_core.repair import tuning
+    from go_core.io.checkpoint import Checkpoints
 
     root, dirs, weights = upstream
     params = {**weights, **LORA}
     full = _tune(tmp_path / "a", dirs, params)
     saved = []
-    original = tuning._save
+    original = Checkpoints.save
 
-    def save_then_die(directory, payload, keep=2):
-        original(directory, payload, keep)
-        saved.append(payload["step"])
-        if payload["step"] == 4:
+    def save_then_die(self, step, fingerprint, payload):
+        original(self, step, fingerprint, payload)
+        saved.append(step)
+        if step == 4:
             raise KeyboardInterrupt("simulated kill after the step-4 checkpoint")
 
-    monkeypatch.setattr(tuning, "_save", save_then_die)
+    monkeypatch.setattr(Checkpoints, "save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
         _tune(tmp_path / "b", dirs, params)
     assert saved == [2, 4]
-    monkeypatch.setattr(tuning, "_save", original)
+    monkeypatch.setattr(Checkpoints, "save", original)
     resumed = _tune(tmp_path / "b", dirs, params)
     assert resumed.records["resumed_from"] == 4 and full.records["resumed_from"] == 0
     _, a = read_lora(full.out_dir / "lora.safetensors")
