@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from go_pipeline.pipeline import expand_env, load_pipeline, step_params
-from tests._tiny_repair import FakeCtx, run_weights_step, weights_artifact
+from go_pipeline.pipeline import expand_env, load_pipeline
+from tests._tiny_repair import run_weights_step, weights_artifact
 
 
 def test_no_weights_configured_records_missing_with_how_to_get_them(tmp_path):
@@ -26,19 +26,22 @@ def test_wrong_weight_path_is_an_error_not_a_skip(tmp_path):
 
 
 def test_loo_and_noise_pairs_skip_without_reading_anything_else(tmp_path):
-    from go_pipeline.steps import loo, noise_pairs
+    """Without weights the runner skips loo and noise_pairs from their declarations (steps/registry.py):
+    no worker, so nothing else is read; the skipped outputs are a skipped .json and an empty .npz."""
+    from go_pipeline.skipping import cascade_skip, write_skipped_outputs
+    from go_pipeline.steps.registry import STEPS
 
-    # Only the weights artifact exists: a step that tried to read the scene or the models would fail.
-    dirs = {"weights": weights_artifact(tmp_path / "w", status="missing")}
-    ctx = FakeCtx(tmp_path, "loo")
-    loo.run(ctx, dirs, step_params(loo.__name__, {}))
-    assert json.loads((ctx.out_dir / "loo.json").read_text())["status"] == "skipped"
-    with np.load(ctx.out_dir / "loo_pairs.npz") as pairs:
+    record = json.loads((weights_artifact(tmp_path / "w", status="missing") / "weights.json").read_text())
+    done = {"weights": {"record": {"status": "skipped", "reason": record["reason"]}}}
+    for step in ("loo", "noise_pairs"):
+        declared = STEPS[f"go_pipeline.steps.{step}"]
+        skip = cascade_skip(declared.skip_if_skipped, {"weights": "weights"}, done)
+        assert skip["status"] == "skipped" and "missing" in skip["reason"]
+        write_skipped_outputs(tmp_path / step, tuple(a.file for a in declared.outputs), skip, step)
+    assert json.loads((tmp_path / "loo" / "loo.json").read_text())["status"] == "skipped"
+    with np.load(tmp_path / "loo" / "loo_pairs.npz") as pairs:
         assert len(pairs.files) == 0
-    assert ctx.records["status"] == "skipped" and "missing" in ctx.records["reason"]
-    nctx = FakeCtx(tmp_path, "noise_pairs")
-    noise_pairs.run(nctx, {**dirs, "loo": ctx.out_dir}, step_params(noise_pairs.__name__, {}))
-    assert json.loads((nctx.out_dir / "noise_pairs.json").read_text())["status"] == "skipped"
+    assert json.loads((tmp_path / "noise_pairs" / "noise_pairs.json").read_text())["status"] == "skipped"
 
 
 def test_env_references_in_params_expand_like_the_shell():
