@@ -185,9 +185,8 @@ def test_docs_name_only_result_files_that_exist():
 
 
 def test_export_formats_param():
-    from go_pipeline.steps.params import ExportParams
-
     from go_core.config import SettingError, check_value
+    from go_pipeline.steps.params import ExportParams
 
     assert ExportParams().formats == ("ply", "spz")
     assert ExportParams(formats=("spz",)).check() == [
