@@ -31,8 +31,8 @@ DATA = Path("/work/shared/data/photos/ethiopian_head")
 OUT = Path(__file__).resolve().parent / "results" / "photos_ethiopian_head.json"
 
 
-def _cli(scene: Path, sets: list[str], log: Path) -> tuple[int, float]:
-    cmd = [sys.executable, "-m", "go_pipeline.cli", "run", str(scene)]
+def _cli(scene: Path, sets: list[str], log: Path, until: str = "") -> tuple[int, float]:
+    cmd = [sys.executable, "-m", "go_pipeline.cli", "run", str(scene)] + (["--until", until] if until else [])
     for s in sets:
         cmd += ["--set", s]
     start = time.perf_counter()
@@ -74,7 +74,7 @@ def _reference(data: Path) -> dict:
 
 def rotation_errors(estimated: dict, reference: dict) -> dict[str, float]:
     """Degrees, per photo: estimated vs reference rotation after the similarity of the camera centres."""
-    from go_core.poses.similarity import umeyama
+    from go_core.alignment import umeyama
 
     names = sorted(estimated)
     sim = umeyama(
@@ -111,8 +111,9 @@ def product(args) -> dict:
     shutil.rmtree(work, ignore_errors=True)
     scene = work / "photos"
     shutil.copytree(args.data / "images", scene / "images")  # the images alone: no reference/
-    rc, wall = _cli(scene, args.set, work / "run.log")
-    result = {"command": "go-pipeline run PHOTOS " + " ".join(f"--set {s}" for s in args.set), "rc": rc}
+    rc, wall = _cli(scene, args.set, work / "run.log", args.until)
+    command = "go-pipeline run PHOTOS" + "".join(f" --set {s}" for s in args.set)
+    result = {"command": command + (f" --until {args.until}" if args.until else ""), "rc": rc}
     result["wall_s"] = round(wall, 1)
     if rc != 0:
         result["error"] = (work / "run.log").read_text().strip().splitlines()[-1]
@@ -232,6 +233,7 @@ def main() -> int:
     p.add_argument("--set", action="append", default=[], help="STEP.PARAM=VALUE for both runs")
     p.add_argument("--out", type=Path, default=OUT)
     p.add_argument("--label", default="defaults", help="the key of this configuration in the JSON")
+    p.add_argument("--until", default="", help="product: stop after this step (scene: masks and SfM only)")
     args = p.parse_args()
     doc = json.loads(args.out.read_text()) if args.out.is_file() else {"data": str(args.data), "runs": {}}
     if args.part == "table":
