@@ -200,3 +200,21 @@ def test_a_training_view_whose_mask_disagrees_is_replaced():
     second, rejected = _agreeing_views(views, 4, Path("."))
     assert rejected == [bad] and bad not in second.indices
     assert max(abs(g - 90.0) for g in second.gaps_deg) < 25.0
+
+
+@pytest.mark.slow
+def test_disk_lightglue_registers_the_synthetic_capture(capture):
+    from go_core.features.weights import weights_path
+
+    if not (weights_path("disk").is_file() and weights_path("lightglue_disk").is_file()):
+        pytest.skip("DISK + LightGlue weights not fetched (`go-pipeline weights fetch`)")
+    folder, truth = capture
+    from go_pipeline.steps.params import SceneParams
+
+    p = SceneParams()
+    settings = PhotoSettings(4, p.photo_size, p.sfm_size, p.min_registered, SfmSettings("disk", 1024, 6))
+    scene, record = read_photo_scene(folder.parent, settings, photo_masker("grabcut")[0])
+    assert record["sfm"]["registered"] == 16 and record["sfm"]["matcher"] == "disk"
+    views = scene.train + scene.test
+    by_name = {f"IMG_{k:04d}": cam for k, cam in enumerate(truth)}
+    assert rotation_errors_deg([v.camera for v in views], [by_name[v.name] for v in views]).max() < 1.0
