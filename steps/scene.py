@@ -76,7 +76,7 @@ def _photo_scene(ctx, folder: Path, params: SceneParams):
         bars.append(ctx.progress(total, label))
         return bars[-1].advance
 
-    log_path = ctx.out_dir.parent / f".{ctx.out_dir.name}.colmap.log"
+    log_path = ctx.out_dir / "colmap.log"  # read into the run log and removed below
     try:
         scene, record = read_photo_scene(folder, settings, masker, progress=progress, log_path=log_path)
     finally:
