@@ -1,7 +1,7 @@
 """Object masks of every photo of a photo folder (SfM restricts features to them; the views keep them).
 
-* ``u2netp``: the auto masks (``go_core.auto_mask``: the u2netp salient-object model from the weights cache
-  with the post-processing chosen by measured IoU, docs/photos_masks.md);
+* ``u2netp``: the auto masks (``go_core.scene.auto_mask``: the u2netp salient-object model from the weights
+  cache with the post-processing chosen by measured IoU, docs/photo_masks.md);
 * ``grabcut``: OpenCV GrabCut seeded from the image border (``go_core.scene.masking.grabcut_mask``), run at
   ``GRABCUT_SIZE`` on the long side and scaled back (bilinear, > 0.5);
 * ``auto``: u2netp when it is in the weights cache (``go-pipeline weights fetch``), else GrabCut.
@@ -32,23 +32,16 @@ def grabcut_photo_mask(image: np.ndarray, iterations: int = 5, border: float = 0
     return (m > 0.5).astype(np.float32)
 
 
-def _u2netp_fetched() -> bool:
-    """Whether the auto masks (go_core.auto_mask, branch g-masks of issue 32) are installed and fetched."""
-    try:
-        from go_core.salient_weights import u2netp_path
-    except ImportError:  # a build without the auto masks: GrabCut
-        return False
-    return u2netp_path().is_file()
-
-
 def photo_masker(method: str, threads: int = 1) -> tuple[Callable[[np.ndarray], np.ndarray], str]:
     """(mask function, the method it is) for ``method`` in ``PHOTO_MASK_METHODS``; u2netp raises
     ``MissingWeightsError`` (naming the file and the fetch command) when asked for and not fetched."""
     if method not in PHOTO_MASK_METHODS:
         raise ValueError(f"photo mask method must be one of {PHOTO_MASK_METHODS}, got {method!r}")
-    if method == "grabcut" or (method == "auto" and not _u2netp_fetched()):
+    from go_core.scene.salient_weights import u2netp_path
+
+    if method == "grabcut" or (method == "auto" and not u2netp_path().is_file()):
         return grabcut_photo_mask, "grabcut"
-    from go_core.auto_mask import auto_mask, load_segmenter
+    from go_core.scene.auto_mask import auto_mask, load_segmenter
 
     segmenter = load_segmenter(threads=threads)
     return (lambda image: auto_mask(image, segmenter)), "u2netp"
