@@ -21,6 +21,7 @@ class Artifact:
 # The ingested scene (go_core.scene.artifact)
 SCENE_INFO = Artifact("scene.json", "the ingested scene: cameras, splits, image names")
 SCENE_VIEWS = Artifact("views.npz", "the ingested scene's images and masks, uint8")
+SCENE_PHOTOS = Artifact("photos.json", "a photo folder's masks, SfM attempts, registration and view choice")
 # Masks and depth priors (go_core.scene.masking, go_core.coarse.depth_prior)
 MASKS = Artifact("masks.npz", "training masks, float32 [H,W] each (train_000, ...)")
 MASK_INFO = Artifact("mask.json", "the mask method and per-view statistics")
@@ -61,6 +62,7 @@ __all__ = [
     "Artifact",
     "SCENE_INFO",
     "SCENE_VIEWS",
+    "SCENE_PHOTOS",
     "MASKS",
     "MASK_INFO",
     "DEPTH",

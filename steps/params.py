@@ -39,7 +39,29 @@ class SceneParams:
         doc="estimate: SfM on the training views, verified (COLMAP-free profile, docs/evaluation.md); "
         "initial: start from the folder's initial_poses.json (the folder's own poses stay the reference)",
     )
-    pose_matcher: Literal["sift", "disk"] = setting("sift", doc="features for poses: estimate")
+    pose_matcher: Literal["sift", "disk"] = setting(
+        "sift", doc="features for poses: estimate, and for SfM on a folder of photos"
+    )
+    photo_size: int = setting(512, ge=64, doc="photo folder: long side of the training and test images")
+    sfm_size: int = setting(
+        640, ge=64, doc="photo folder: long side of the images SfM extracts features from"
+    )
+    sfm_features: int = setting(2048, ge=64, doc="photo folder: SIFT/DISK features per photo at most")
+    sfm_window: int = setting(
+        6, ge=1, doc="photo folder: each photo is matched with the next N (and 2N, 4N...)"
+    )
+    photo_masks: Literal["auto", "u2netp", "grabcut"] = setting(
+        "auto", doc="photo folder: how every photo is masked (auto: u2netp when fetched, else GrabCut)"
+    )
+    salient_model: Literal["u2netp"] = setting(
+        "u2netp", doc="photo folder: the weights-cache model of photo_masks u2netp/auto (in the cache key)"
+    )
+    min_registered: float = setting(
+        0.9,
+        gt=0,
+        le=1,
+        doc="photo folder: the fraction of photos SfM must pose, else one error naming the rest",
+    )
 
 
 @dataclass

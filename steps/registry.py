@@ -33,7 +33,9 @@ NO_REPAIR_REASON = "no repair (repair.mode no_repair): the coarse model is the r
 DEPTH_SKIP_REASON = "no depth model configured (depth.model_path is empty): the depth loss is off"
 
 STEPS: dict[str, StepDeclaration] = {
-    "go_pipeline.steps.scene": StepDeclaration(p.SceneParams, (art.SCENE_INFO, art.SCENE_VIEWS)),
+    "go_pipeline.steps.scene": StepDeclaration(
+        p.SceneParams, (art.SCENE_INFO, art.SCENE_VIEWS), sometimes=(art.SCENE_PHOTOS,)
+    ),
     "go_pipeline.steps.mask": StepDeclaration(p.MaskParams, (art.MASKS, art.MASK_INFO)),
     "go_pipeline.steps.depth": StepDeclaration(
         p.DepthParams, (art.DEPTH_INFO, art.DEPTH), skip_if_empty={"model_path": DEPTH_SKIP_REASON}

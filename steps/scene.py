@@ -44,17 +44,83 @@ def _estimate_training_poses(scene, params: SceneParams, seed: int, folder: Path
         )
 
 
+PHOTO_VIEWS = 4  # training views chosen from a photo folder when scene.views is 0 (the paper's setting)
+
+
+def _photo_scene(ctx, folder: Path, params: SceneParams):
+    """A folder of photos without poses: masks, SfM on every photo, the training views (go_core.photos)."""
+    from go_core.io.atomic import atomic_write_json
+    from go_core.photos.masks import photo_masker
+    from go_core.photos.scene import PhotoSettings, read_photo_scene
+    from go_core.photos.sfm import SfmSettings
+
+    masker, method = photo_masker(params.photo_masks)  # one thread, as SfM: the step repeats exactly
+    sfm = SfmSettings(
+        matcher=params.pose_matcher,
+        max_features=params.sfm_features,
+        window=params.sfm_window,
+        seed=int(ctx.seed),
+    )
+    settings = PhotoSettings(
+        views=params.views or PHOTO_VIEWS,
+        photo_size=params.photo_size,
+        sfm_size=params.sfm_size,
+        min_registered=params.min_registered,
+        sfm=sfm,
+    )
+    bars = []
+
+    def progress(label: str, total: int):
+        if bars:
+            bars[-1].close()
+        bars.append(ctx.progress(total, label))
+        return bars[-1].advance
+
+    log_path = ctx.out_dir / "colmap.log"  # read into the run log and removed below
+    try:
+        scene, record = read_photo_scene(folder, settings, masker, progress=progress, log_path=log_path)
+    finally:
+        if bars:
+            bars[-1].close()
+        if log_path.is_file():
+            for line in log_path.read_text(errors="replace").splitlines():
+                ctx.log.debug("colmap: %s", line)
+            log_path.unlink()
+    record["masks"] = method if record["masks"] == "auto" else record["masks"]
+    atomic_write_json(art.SCENE_PHOTOS.path(ctx.out_dir), record)
+    sfm_rec = record["sfm"]
+    ctx.log.info(
+        "photos: %d of %d posed (%s, %s, mean reprojection %.2f px); training views %s",
+        sfm_rec["registered"],
+        record["photos"],
+        sfm_rec["matcher"],
+        sfm_rec["features"],
+        sfm_rec["mean_reprojection_px"],
+        ", ".join(record["views"]["train"]),
+    )
+    if sfm_rec["not_registered"]:
+        ctx.log.warning("photos not posed (left out): %s", ", ".join(sfm_rec["not_registered"]))
+    ctx.record(photos=record["photos"], registered=sfm_rec["registered"], masks=record["masks"])
+    return scene, record
+
+
 def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
     """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""
+    from go_core.photos.folder import is_photo_folder
+
     views, max_size = params.views, params.max_size
-    scene = load_scene(inputs["folder"], views=views, max_size=max_size)
     given, how = None, "given"
-    if params.poses == "estimate":
+    if is_photo_folder(inputs["folder"]):  # train and test poses from one SfM: "given" for eval
+        scene, _ = _photo_scene(ctx, inputs["folder"], params)
+        views, max_size = len(scene.train), params.photo_size
+    else:
+        scene = load_scene(inputs["folder"], views=views, max_size=max_size)
+    if params.poses == "estimate" and scene.format != "photos":
         given = {v.name: v.camera.world_to_cam for v in scene.train}
         _estimate_training_poses(scene, params, int(ctx.seed), inputs["folder"])
         how = f"estimated ({params.pose_matcher}, verified)"
         ctx.log.info("scene: training poses %s", how)
-    elif params.poses == "initial":
+    elif params.poses == "initial" and scene.format != "photos":
         from dataclasses import replace
 
         from go_core.scene.initial_poses import INITIAL_POSES_FILE, read_initial_poses

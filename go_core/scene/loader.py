@@ -65,7 +65,8 @@ def _not_a_scene_message(root: Path) -> str:
         if photos:
             out = folder / TRAIN_FILE if folder == root else root / TRAIN_FILE
             msg += (
-                f". It holds {len(photos)} photos without poses: estimate them with "
+                f". It holds {len(photos)} photos without poses: `go-pipeline run {root}` masks and poses "
+                "them all (docs/photos.md), or estimate them with "
                 f"`go-pipeline poses {folder} --estimate {out}`"
             )
             break

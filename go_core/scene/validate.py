@@ -22,16 +22,17 @@ class ValidationReport:
     path: Path
     problems: list[str] = field(default_factory=list)
     scene: Scene | None = field(default=None, repr=False)
+    photos: dict | None = None  # a folder of photos without poses (go_core.photos.scene.photo_folder_facts)
 
     @property
     def ok(self) -> bool:
-        return not self.problems and self.scene is not None
+        return not self.problems and (self.scene is not None or bool(self.photos))
 
     def facts(self) -> dict:
         """Format, view counts, resolutions, intrinsics and split source of the scene read (JSON-able)."""
         s = self.scene
         if s is None:
-            return {}
+            return dict(self.photos or {})
 
         def resolutions(views: list[View]) -> dict[str, int]:
             return dict(Counter(f"{v.camera.width}x{v.camera.height}" for v in views))
@@ -63,6 +64,15 @@ class ValidationReport:
             lines += [f"  - {p}" for p in self.problems] or ["  - the scene could not be read"]
             return "\n".join(lines)
         f = self.facts()
+        if self.photos:
+            return "\n".join(
+                [
+                    f"{self.path}: OK (a folder of {f['photos']} photos without poses: {f['folder']})",
+                    f"  sizes       : {', '.join(f['sizes'])}; {f['camera_groups']} camera(s), EXIF focal "
+                    f"length in {f['exif_focal']}, turned by EXIF: {len(f['rotated_by_exif'])}",
+                    "  a run will  : " + "; ".join(f["plan"]),
+                ]
+            )
         lines = [
             f"{self.path}: OK ({f['format']} scene)",
             f"  train views : {f['train_views']} ({', '.join(f['train_names'])})",
@@ -79,6 +89,13 @@ class ValidationReport:
 
 def validate_scene(path: str | Path, views: int = 0, max_size: int = 0) -> ValidationReport:
     """Read the scene at ``path`` collecting every problem instead of stopping at the first."""
+    from go_core.photos.folder import is_photo_folder
+
     problems = Problems(strict=False)
+    if is_photo_folder(path):
+        from go_core.photos.scene import photo_folder_facts
+
+        facts = photo_folder_facts(path, views, problems)
+        return ValidationReport(Path(path), problems.lines, None, facts)
     scene = read_scene_folder(path, views, max_size, problems)
     return ValidationReport(Path(path), problems.lines, scene)

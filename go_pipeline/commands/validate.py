@@ -11,7 +11,7 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "validate", help="check a scene folder and print what it holds or every problem"
     )
-    p.add_argument("scene", help="scene folder (NeRF-synthetic or COLMAP)")
+    p.add_argument("scene", help="scene folder (NeRF-synthetic, COLMAP, or a folder of photos)")
     p.add_argument("--views", type=int, default=0, help="choose N training views (0: the scene's own split)")
     p.add_argument("--max-size", type=int, default=0, help="downscale so the longest side is at most this")
     p.add_argument("--json", action="store_true", help="print the findings as JSON")

@@ -1,0 +1,220 @@
+"""A folder of photos without poses (go_core.photos): SfM on a synthetic capture registers every view with
+the true rotations, the training views are spread and deterministic, and each bad input is one clear error
+naming the file (exit 2 from the command line), an EXIF-turned photo is read upright."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _photo_capture import render_sphere, ring_cameras, write_capture
+
+from go_core.errors import SceneError
+from go_core.io.images import ImageReadError
+from go_core.photos.folder import PhotoFile, read_photo, scan_photo
+from go_core.photos.masks import photo_masker
+from go_core.photos.scene import PhotoSettings, read_photo_scene
+from go_core.photos.sfm import SfmSettings, match_pairs
+from go_core.photos.views import choose_spread_views, normalising_similarity
+from go_core.poses.similarity import umeyama
+from go_core.scene.common import Problems
+
+
+def rotation_errors_deg(estimated, truth) -> np.ndarray:
+    """Per camera, the angle between estimated and true rotations after the similarity of the centres."""
+    sim = umeyama(np.stack([c.center for c in estimated]), np.stack([c.center for c in truth]))
+    out = []
+    for e, t in zip(estimated, truth, strict=True):
+        r = sim.camera(e).world_to_cam[:3, :3] @ t.world_to_cam[:3, :3].T
+        out.append(np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
+    return np.asarray(out)
+
+
+def read(folder: Path):
+    """``read_photo_scene`` at the ``scene`` step's default params."""
+    from go_pipeline.steps.params import SceneParams
+
+    p = SceneParams()
+    sfm = SfmSettings(p.pose_matcher, p.sfm_features, p.sfm_window)
+    settings = PhotoSettings(4, p.photo_size, p.sfm_size, p.min_registered, sfm)
+    return read_photo_scene(folder, settings, photo_masker(p.photo_masks)[0])
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("capture") / "images"
+    return folder, write_capture(folder, 16)
+
+
+def test_sfm_registers_every_view_of_a_synthetic_capture(capture):
+    folder, truth = capture
+    scene, record = read(folder.parent)
+    assert record["sfm"]["registered"] == 16 and record["sfm"]["not_registered"] == []
+    assert record["masks"] == "alpha" and record["sfm"]["features"] == "inside the masks"
+    views = scene.train + scene.test
+    assert len(scene.train) == 4 and len(scene.test) == 12
+    by_name = {f"IMG_{k:04d}": cam for k, cam in enumerate(truth)}
+    errors = rotation_errors_deg([v.camera for v in views], [by_name[v.name] for v in views])
+    assert errors.max() < 1.0, errors
+    assert record["views"]["why"]["gaps_deg"] == pytest.approx([90.0] * 4, abs=12.0)
+    assert abs(views[0].camera.K[0, 0] / by_name[views[0].name].K[0, 0] - 1) < 0.05  # focal recovered
+
+
+def test_view_choice_is_deterministic_and_spread():
+    rng = np.random.default_rng(3)
+    cams = ring_cameras(40)
+    jittered = []
+    for c in cams:
+        w2c = c.world_to_cam.copy()
+        w2c[:3, 3] += rng.normal(0, 0.05, 3)
+        jittered.append(type(c)(c.name, c.width, c.height, c.K, w2c))
+    sim = normalising_similarity(jittered)
+    normalised = [sim.camera(c) for c in jittered]
+    a, b = choose_spread_views(normalised, 4), choose_spread_views(normalised, 4)
+    assert a.indices == b.indices and len(set(a.indices)) == 4
+    assert max(abs(g - 90.0) for g in a.gaps_deg) < 9.0 + 1.0  # the ring's spacing is 9°
+    three = choose_spread_views(normalised, 3)
+    assert max(abs(g - 120.0) for g in three.gaps_deg) < 10.0
+
+
+def test_match_pairs_scale_past_exhaustive():
+    assert len(match_pairs(30, 6, 40)) == 30 * 29 // 2
+    pairs = match_pairs(200, 6, 40)
+    assert len(pairs) < 200 * 12 and (0, 199) in pairs and (0, 1) in pairs and (0, 12) in pairs
+    assert all(i < j for i, j in pairs) and len(set(pairs)) == len(pairs)
+
+
+def _jpegs(folder: Path, n: int, seed: int = 0) -> list[Path]:
+    from PIL import Image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for k, cam in enumerate(ring_cameras(n, 128)):
+        rgb, _ = render_sphere(cam, seed)
+        path = folder / f"DSC_{k:04d}.jpg"
+        Image.fromarray((rgb * 255).round().astype(np.uint8)).save(path, quality=95)
+        out.append(path)
+    return out
+
+
+def test_too_few_photos(tmp_path):
+    _jpegs(tmp_path / "few", 5)
+    with pytest.raises(SceneError, match=r"found 5 photos; posing them needs at least 8") as info:
+        read(tmp_path / "few")
+    assert "\n" not in str(info.value)
+
+
+def test_corrupt_jpeg_is_named(tmp_path):
+    files = _jpegs(tmp_path / "bad", 9)
+    files[3].write_bytes(files[3].read_bytes()[: len(files[3].read_bytes()) // 2])
+    with pytest.raises(ImageReadError, match="unreadable photo data") as info:
+        read(tmp_path / "bad")
+    assert info.value.path == files[3]
+    files[5].write_bytes(b"not a jpeg at all")
+    problems = Problems(strict=False)
+    assert scan_photo(files[5], problems) is None and "DSC_0005.jpg" in problems.lines[0]
+
+
+def test_duplicate_photos_are_named(tmp_path):
+    files = _jpegs(tmp_path / "dup", 9)
+    shutil.copy(files[2], files[2].with_name("DSC_0002 copy.jpg"))
+    with pytest.raises(SceneError, match=r"photos DSC_0002 copy and DSC_0002 show the same picture"):
+        read(tmp_path / "dup")
+
+
+def test_exif_rotation_is_honoured(tmp_path):
+    from PIL import Image
+
+    pixels = (np.random.default_rng(0).random((40, 60, 3)) * 255).astype(np.uint8)
+    img = Image.fromarray(pixels)
+    exif = img.getexif()
+    exif[0x0112] = 6  # the camera was turned: show the stored pixels turned 90° clockwise
+    path = tmp_path / "turned.jpg"
+    img.save(path, exif=exif, quality=100, subsampling=0)
+    photo = scan_photo(path, Problems(strict=True))
+    assert isinstance(photo, PhotoFile) and (photo.width, photo.height, photo.orientation) == (40, 60, 6)
+    rgb, alpha = read_photo(photo)
+    assert rgb.shape == (60, 40, 3) and alpha is None
+    stored = np.asarray(Image.open(path).convert("RGB"), np.float32) / 255
+    assert np.abs(rgb - np.rot90(stored, k=-1)).max() < 1e-6
+
+
+@pytest.mark.slow
+def test_photos_that_do_not_register_are_named(tmp_path):
+    folder = tmp_path / "mixed"
+    write_capture(folder, 16)
+    for k, seed in enumerate((11, 12, 13)):  # a different object in each: nothing to match
+        write_capture(tmp_path / f"x{k}", 1, seed=seed, prefix=f"ZZ_{k}_")
+        shutil.copy(next((tmp_path / f"x{k}").iterdir()), folder)
+    with pytest.raises(
+        SceneError, match=r"3 of 19 photos could not be posed: ZZ_0_0000, ZZ_1_0000, ZZ_2_0000"
+    ):
+        read(folder)
+
+
+@pytest.mark.slow
+def test_two_different_objects(tmp_path):
+    folder = tmp_path / "two"
+    write_capture(folder, 16, seed=0, prefix="A_")
+    write_capture(folder, 16, seed=1, prefix="B_")
+    with pytest.raises(SceneError, match=r"separate groups that share no features .* two different objects"):
+        read(folder)
+
+
+def test_command_line_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path):
+    _jpegs(tmp_path / "few" / "images", 5)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    workdir = tmp_path / "w"
+    done = subprocess.run(
+        [sys.executable, "-m", "go_pipeline.cli", "run", str(tmp_path / "few"), "--workdir", str(workdir)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = [ln for ln in done.stderr.strip().splitlines() if ln.startswith("error: ")]
+    assert len(lines) == 1 and "found 5 photos" in lines[0] and "Traceback" not in done.stderr
+    assert not list(workdir.glob("**/scene.json"))
+
+
+def test_a_training_view_whose_mask_disagrees_is_replaced():
+    from go_core.photos.scene import _agreeing_views
+    from go_core.scene.types import View
+
+    cams = ring_cameras(16)
+    views = []
+    for cam in cams:
+        rgb, mask = render_sphere(cam, 0)
+        views.append(View(cam, rgb, mask))
+    first, rejected = _agreeing_views(views, 4, Path("."))
+    assert rejected == [] and len(first.indices) == 4
+    bad = first.indices[1]
+    views[bad].mask = views[bad].mask.copy()
+    views[bad].mask[:60, :] = 1.0  # a mask that took in a band of background
+    second, rejected = _agreeing_views(views, 4, Path("."))
+    assert rejected == [bad] and bad not in second.indices
+    assert max(abs(g - 90.0) for g in second.gaps_deg) < 25.0
+
+
+@pytest.mark.slow
+def test_disk_lightglue_registers_the_synthetic_capture(capture):
+    from go_core.features.weights import weights_path
+
+    if not (weights_path("disk").is_file() and weights_path("lightglue_disk").is_file()):
+        pytest.skip("DISK + LightGlue weights not fetched (`go-pipeline weights fetch`)")
+    folder, truth = capture
+    from go_pipeline.steps.params import SceneParams
+
+    p = SceneParams()
+    settings = PhotoSettings(4, p.photo_size, p.sfm_size, p.min_registered, SfmSettings("disk", 1024, 6))
+    scene, record = read_photo_scene(folder.parent, settings, photo_masker("grabcut")[0])
+    assert record["sfm"]["registered"] == 16 and record["sfm"]["matcher"] == "disk"
+    views = scene.train + scene.test
+    by_name = {f"IMG_{k:04d}": cam for k, cam in enumerate(truth)}
+    assert rotation_errors_deg([v.camera for v in views], [by_name[v.name] for v in views]).max() < 1.0
