@@ -201,7 +201,7 @@ def main(argv=None) -> int:
         "--variant", action="append", default=[], help="NAME:step.param=value,... (default: defaults)"
     )
     ap.add_argument("--stages", nargs="+", default=["coarse", "full"], choices=["coarse", "full"])
-    ap.add_argument("--photo-size", type=int, default=512, help="long side of the photo sets' working images")
+    ap.add_argument("--photo-size", type=int, default=400, help="long side of the photo sets' working images")
     ap.add_argument("--profile", default=None, help="pipeline.yaml profile under every variant")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--sheets", type=Path, default=None, help="folder for real_<capture>_<variant>.jpg")
