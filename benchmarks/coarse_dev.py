@@ -65,6 +65,11 @@ VARIANTS = {
     "no_outside": {"init": "hull", "params": {"lambda_outside": 0.0}},
     "no_aniso": {"init": "hull", "params": {"lambda_anisotropy": 0.0}},
     "no_opacity": {"init": "hull", "params": {"lambda_opacity": 0.0}},
+    # real captures (issue 33, docs/coarse.md "Real captures")
+    "inside": {"init": "hull", "params": {"lambda_inside": 0.1}},
+    "color": {"init": "hull", "params": {"color_correction": True}},
+    "screen_px": {"init": "hull", "params": {"max_screen_fraction": 0.0}},
+    "white_bg": {"init": "hull", "params": {"random_background": False}},
 }
 
 
@@ -121,7 +126,9 @@ def evaluate(g, scene) -> dict:
     the true mask) and the share of squared error on pixels outside the true silhouette."""
     white = torch.ones(3)
     lpips = _lpips_vgg()
-    ps, ss, lp, ious, outside = [], [], [], [], []
+    from go_core.coarse.regularizers import eroded_mask
+
+    ps, ss, lp, ious, outside, holes = [], [], [], [], [], []
     with torch.no_grad():
         for v in scene.test:
             cam = v.camera
@@ -137,6 +144,8 @@ def evaluate(g, scene) -> dict:
                 m = np.asarray(v.mask) > 0.5
                 a = out.alpha[0, ..., 0].numpy() > 0.5
                 ious.append(float((a & m).sum() / max((a | m).sum(), 1)))
+                interior = eroded_mask(torch.as_tensor(np.asarray(v.mask, np.float32)), 2).numpy() > 0.5
+                holes.append(float((~a[interior]).mean()) if interior.any() else 0.0)
                 se = ((pred.numpy().astype(np.float64) - gt.numpy()) ** 2).sum(-1)
                 outside.append(float(se[~m].sum() / max(se.sum(), 1e-12)))
     res = {
@@ -149,6 +158,8 @@ def evaluate(g, scene) -> dict:
     if ious:
         res["silhouette_iou"] = round(float(np.mean(ious)), 4)
         res["error_share_outside_silhouette"] = round(float(np.mean(outside)), 4)
+        # share of the mask interior (eroded 2 px) rendered with alpha < 0.5: see-through holes
+        res["see_through_pct"] = round(100 * float(np.mean(holes)), 3)
     return res
 
 

@@ -87,6 +87,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
             **info,
             "config": config.to_dict(),
             "floater_passes": stats.floater_passes,
+            "color_transforms": stats.color_transforms,  # coarse.color_correction: per view [A, b]; else None
             "loss_log": stats.loss_log,
         },
     )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -135,9 +137,12 @@ def test_hooks_compose_fixed_set_extra_loss_and_view_weights():
     assert stats.floaters_removed == 0 and stats.floater_passes == []  # 9 steps: the first pass is at 10
 
 
-def test_killed_run_resumes_bit_identically(tmp_path):
+@pytest.mark.parametrize(
+    "extra", [{}, {"color_correction": True, "color_lr": 0.01, "lambda_inside": 0.1}], ids=["plain", "real"]
+)
+def test_killed_run_resumes_bit_identically(tmp_path, extra):
     views = _views()
-    cfg = _tiny_config(40)
+    cfg = replace(_tiny_config(40), **extra)
     ref, ref_stats = optimize(_init(), views, cfg, generator=torch.Generator().manual_seed(7))
 
     class Killed(Exception):
@@ -164,6 +169,8 @@ def test_killed_run_resumes_bit_identically(tmp_path):
     for name, t in ref.tensors().items():
         assert torch.equal(getattr(out, name), t), name
     assert stats.loss_log == ref_stats.loss_log and stats.densify == ref_stats.densify
+    assert stats.color_transforms == ref_stats.color_transforms  # the colour transforms resume too
+    assert (stats.color_transforms is None) == (not extra)
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
     ref.save(a)
     out.save(b)

@@ -21,7 +21,26 @@ from go_core.coarse.optim import GaussianOptimizer
 from go_core.coarse.settings import DensifyConfig
 from go_core.render.projection import quat_to_rotmat
 
-__all__ = ["DensifyConfig", "DensifyStrategy", "NoDensify", "Strategy", "quat_to_rotmat"]
+__all__ = ["DensifyConfig", "DensifyStrategy", "NoDensify", "Strategy", "quat_to_rotmat", "screen_size_limit"]
+
+
+def screen_size_limit(config: DensifyConfig, masks: list) -> float:
+    """The screen-radius (px) above which a Gaussian is pruned after the first opacity reset.
+
+    3DGS prunes Gaussians wider than ``max_screen_size`` = 20 px, a limit written for ~1000-px photos of
+    whole scenes. In pixels it depends on the resolution and the framing: on real/ethiopian_head (400 px,
+    the head filling 214 px) the hull's own Gaussians are 15-20 px wide, so after the first reset ~20 % of
+    them were pruned every densification interval, their clones were as wide, and the object bled away (7
+    of 20 000 left; docs/coarse.md "Real captures"). With ``max_screen_fraction`` > 0 the limit is that
+    fraction of the object's silhouette size, the median over the training ``masks`` of sqrt(mask area in
+    px): a Gaussian wider than that share of the object is a blob or a floater at any resolution.
+    ``max_screen_size`` (px) applies when the fraction is 0 or no mask is given; 0 turns the rule off."""
+    import numpy as np
+
+    sizes = [float(np.sqrt((np.asarray(m) > 0.5).sum())) for m in masks if m is not None]
+    if config.max_screen_fraction <= 0 or not sizes or config.max_screen_size <= 0:
+        return float(config.max_screen_size)
+    return float(config.max_screen_fraction * np.median(sizes))
 
 
 class Strategy(ABC):
@@ -76,10 +95,13 @@ class NoDensify(Strategy):
 class DensifyStrategy(Strategy):
     """3DGS adaptive density control with a budget; see the module docstring for the hook protocol."""
 
-    def __init__(self, config: DensifyConfig, extent: float, n: int) -> None:
+    def __init__(
+        self, config: DensifyConfig, extent: float, n: int, screen_limit: float | None = None
+    ) -> None:
         super().__init__()
         self.config = config
         self.extent = float(extent)
+        self.screen_limit = float(config.max_screen_size if screen_limit is None else screen_limit)
         self.counts: dict[str, int] = {"cloned": 0, "split": 0, "pruned": 0, "pruned_no_contribution": 0}
         self.counts.update({"opacity_resets": 0, "budget_limited": 0})
         self._reset_stats(n)
@@ -144,8 +166,8 @@ class DensifyStrategy(Strategy):
         opac = torch.sigmoid(p["opacity_logits"].detach())
         prune = opac < c.min_opacity
         if step > c.opacity_reset_every > 0:
-            if c.max_screen_size > 0:
-                prune |= self.max_radii > c.max_screen_size
+            if c.max_screen_size > 0 and self.screen_limit > 0:
+                prune |= self.max_radii > self.screen_limit
             if c.max_world_size > 0:
                 prune |= p["log_scales"].detach().exp().max(dim=1).values > c.max_world_size * self.extent
         n_nc = 0

@@ -26,6 +26,7 @@ Composability:
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
 import math
 from collections.abc import Callable, Iterator
@@ -35,7 +36,8 @@ import numpy as np
 import torch
 
 from go_core.camera import Camera
-from go_core.coarse.densify import DensifyStrategy, NoDensify, Strategy
+from go_core.coarse.color_correction import ViewColorCorrection
+from go_core.coarse.densify import DensifyStrategy, NoDensify, Strategy, screen_size_limit
 from go_core.coarse.floaters import FloaterElimination
 from go_core.coarse.losses import depth_loss, photometric_terms
 from go_core.coarse.optim import GaussianOptimizer
@@ -81,6 +83,7 @@ class TrainStats:
     loss_log: list[dict] = field(default_factory=list)
     depth_loss_used: bool = False
     pose_corrections: list[list[float]] | None = None  # refine_poses: per view [ωx,ωy,ωz,τx,τy,τz]
+    color_transforms: list[list[float]] | None = None  # color_correction: per view [A row-major, b]
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -95,7 +98,8 @@ class TrainStats:
             raise CollapsedModelError(
                 f"the model collapsed: {self.final_count} of {self.initial_count} Gaussians left after "
                 f"{self.iterations} iterations (densify: {self.densify}); pruning removed the object — try "
-                "fewer iterations, coarse.lambda_opacity=0 or coarse.opacity_reset_every=0"
+                "fewer iterations, coarse.lambda_opacity=0, coarse.opacity_reset_every=0 or a larger "
+                "coarse.max_screen_fraction (densify.pruned counts every prune rule)"
             )
 
 
@@ -236,7 +240,8 @@ def optimize(
     g0 = gaussians.detach().to(dtype=torch.float32).with_sh_degree(config.sh_degree)
     opt = GaussianOptimizer(g0, config, extent)
     if strategy is None:
-        strategy = DensifyStrategy(config, extent, len(opt))
+        limit = screen_size_limit(config, [v.mask for v in views])
+        strategy = DensifyStrategy(config, extent, len(opt), limit)
     floaters = FloaterElimination(config)
     stats = TrainStats(initial_count=len(g0), max_count=len(g0))
     stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
@@ -246,6 +251,7 @@ def optimize(
 
         cams, lrs = [v.camera for v in views], (config.pose_lr_rotation, config.pose_lr_translation)
         poses = JointPoses(cams, *lrs, config.pose_refine_from, config.iterations)
+    colors = ViewColorCorrection(len(views), config.color_lr) if config.color_correction else None
     order: list[int] = []
     start = 0
     fingerprint = fingerprint_of(
@@ -265,6 +271,8 @@ def optimize(
             stats.resumed_from = start
             if poses is not None:
                 poses.load_state_dict(payload["poses"])
+            if colors is not None:
+                colors.load_state_dict(payload["colors"])
 
     fixed_bg = torch.tensor(config.background, dtype=torch.float32)
     with _cyclic_gc_paused() as gc_tick:
@@ -285,6 +293,9 @@ def optimize(
             keep_scale = drop_compensation(len(g), rate, generator)
             viewmat = poses.viewmat(index, step) if poses is not None else None
             out = _render(g, view.camera, active_sh, bg, config.backend, keep_scale, viewmat)
+            if colors is not None:
+                rgb = colors.apply(index, out.rgb[0], out.alpha[0, ..., 0], bg)
+                out = dataclasses.replace(out, rgb=rgb[None])
             strategy.pre_backward(step, out)
             loss, parts = view_loss(out, view, bg, config, step)
             reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask)
@@ -301,6 +312,8 @@ def optimize(
             opt.step()
             if poses is not None:
                 poses.step(step)
+            if colors is not None:
+                colors.step()
             changed = strategy.after_step(step, opt, generator)
             floater_pass = floaters.after_step(step, opt, strategy)
             if floater_pass is not None:
@@ -336,12 +349,15 @@ def optimize(
                         "order": list(order),
                         "stats": stats.to_dict(),
                         **({"poses": poses.state_dict()} if poses is not None else {}),
+                        **({"colors": colors.state_dict()} if colors is not None else {}),
                     },
                 )
     stats.final_count = len(opt)
     stats.densify = dict(strategy.counts)
     if poses is not None:
         stats.pose_corrections = poses.corrections()
+    if colors is not None:
+        stats.color_transforms = colors.summary()
     if not math.isfinite(float(opt.params["means"].detach().sum())):
         raise FloatingPointError("coarse optimisation diverged (non-finite Gaussian positions)")
     return opt.snapshot(), stats

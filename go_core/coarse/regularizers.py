@@ -9,6 +9,9 @@ so each is also an ablation; measured on the dev scenes in docs/coarse.md).
 * **Outside-mask alpha** (silhouette tightening): ``mean over pixels outside the training mask of α²`` —
   normalised by the number of outside pixels (the BCE term averages over the whole image, so a thin band of
   stray alpha along the silhouette weighs little there).
+* **Inside-mask alpha** (no see-through holes): ``mean over the eroded mask interior of (1 − α)²``; the
+  erosion (``inside_erode_px``) keeps it off the edge band where a binary mask of a real photo is wrong by
+  a pixel or two.
 * **Anisotropy**: ``mean_i max(s_max,i / s_min,i − r, 0)`` against needle-like Gaussians (ratio ``r``).
 * **Opacity decay**: ``mean_i σ(o_i)``; Gaussians that no training view needs (hidden behind the surface,
   inside the hull's excess) get only this gradient and fade until pruning removes them.
@@ -53,6 +56,25 @@ def outside_alpha_loss(alpha: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return (w * a * a).sum() / w.sum().clamp_min(1.0)
 
 
+def eroded_mask(mask: torch.Tensor, radius: int) -> torch.Tensor:
+    """Binary [H,W] interior of ``mask`` (> 0.5): the pixels whose (2r+1)² square lies inside the mask."""
+    inside = (mask > 0.5).to(torch.float32)
+    if radius <= 0:
+        return inside
+    k = 2 * radius + 1
+    outside = torch.nn.functional.max_pool2d((1.0 - inside)[None, None], k, stride=1, padding=radius)
+    return 1.0 - outside[0, 0]
+
+
+def inside_alpha_loss(alpha: torch.Tensor, interior: torch.Tensor) -> torch.Tensor:
+    """``Σ w·(1 − α)² / Σ w`` with ``w`` the (eroded) mask interior: transparency where the training view
+    sees the object, averaged over the interior. Zero for an empty interior."""
+    a = alpha.reshape(interior.shape)
+    w = interior.to(a.dtype)
+    r = 1.0 - a
+    return (w * r * r).sum() / w.sum().clamp_min(1.0)
+
+
 def anisotropy_loss(log_scales: torch.Tensor, max_ratio: float) -> torch.Tensor:
     """``mean_i max(exp(max log s_i − min log s_i) − r, 0)``: penalises Gaussians whose largest axis is more
     than ``r`` times their smallest (needles and flakes that fit 4 views but not a fifth)."""
@@ -81,6 +103,9 @@ def regularization_loss(
 
     if config.lambda_outside > 0 and mask is not None:
         add("outside_alpha", config.lambda_outside, outside_alpha_loss(alpha, mask))
+    if config.lambda_inside > 0 and mask is not None:
+        interior = eroded_mask(mask, config.inside_erode_px)
+        add("inside_alpha", config.lambda_inside, inside_alpha_loss(alpha, interior))
     if config.lambda_anisotropy > 0:
         term = anisotropy_loss(gaussians.log_scales, config.max_anisotropy)
         add("anisotropy", config.lambda_anisotropy, term)
@@ -94,6 +119,8 @@ __all__ = [
     "anisotropy_loss",
     "drop_compensation",
     "drop_rate",
+    "eroded_mask",
+    "inside_alpha_loss",
     "opacity_decay_loss",
     "outside_alpha_loss",
     "regularization_loss",

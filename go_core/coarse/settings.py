@@ -57,6 +57,9 @@ class DensifyConfig:
     opacity_reset_every: int = setting(1000, ge=0, doc="0: never; only while densifying")
     opacity_reset_value: float = setting(0.01, gt=0, lt=1, doc="opacities are clamped to this at a reset")
     max_screen_size: float = setting(20.0, ge=0, doc="px; prune larger after the 1st reset (0: off)")
+    max_screen_fraction: float = setting(
+        0.15, ge=0, doc="x the object's silhouette size (sqrt of mask area) replaces max_screen_size; 0: px"
+    )
     max_world_size: float = setting(0.1, ge=0, doc="x extent; prune larger after the first reset (0: off)")
     max_gaussians: int = setting(150000, ge=0, doc="Gaussian budget (0: unlimited)")
     prune_no_contribution: bool = setting(True, doc="prune Gaussians with no colour gradient")
@@ -104,6 +107,10 @@ class RegularizerConfig:
     lambda_anisotropy: float = setting(0.0, ge=0, doc="hinge on max/min scale ratio above max_anisotropy")
     max_anisotropy: float = setting(10.0, ge=1)
     lambda_opacity: float = setting(0.01, ge=0, doc="opacity decay: mean opacity; 0: off")
+    lambda_inside: float = setting(0.0, ge=0, doc="(1 - alpha)^2 inside the eroded training masks; 0: off")
+    inside_erode_px: int = setting(2, ge=0, doc="lambda_inside: mask erosion (px) kept off the binary edge")
+    color_correction: bool = setting(False, doc="learn an affine colour transform per training view")
+    color_lr: float = setting(0.001, ge=0, doc="color_correction: Adam lr of the transforms")
 
 
 @dataclass
