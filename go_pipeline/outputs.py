@@ -4,6 +4,8 @@ stable names, each written atomically (a temp file renamed into place):
 ```
 model.ply        the final model (export step), INRIA layout
 model.spz        the same model as Niantic .spz (export.formats; also model.splat, model.compressed.ply)
+model.glb        its surface as a coloured mesh, glTF 2.0 binary (mesh step)
+model_mesh.ply   the same mesh as PLY, in the scene's world frame (mesh step)
 turntable.gif    the turntable (turntable step); turntable.mp4 / camera_path.mp4 when the step made them
 contact_sheet.png  a few turntable frames side by side (turntable step)
 metrics.json     PSNR / SSIM / LPIPS per test view and mean (eval step)
@@ -32,6 +34,8 @@ INDEX = "index.json"
 COPIED = {
     "model.ply": ("export", art.POINT_CLOUD.file),
     **{FILE_NAMES[f]: ("export", FILE_NAMES[f]) for f in ("spz", "splat", "compressed_ply")},
+    "model.glb": ("mesh", art.MESH_GLB.file),
+    "model_mesh.ply": ("mesh", art.MESH_PLY.file),
     "turntable.gif": ("turntable", art.TURNTABLE.file),
     "contact_sheet.png": ("turntable", art.CONTACT_SHEET.file),
     "turntable.mp4": ("turntable", "turntable.mp4"),
