@@ -145,6 +145,13 @@ def result_lines(
             f"  {len(metrics.get('views', []))} test views: PSNR {fmt('psnr', '.2f', ' dB')}, "
             f"SSIM {fmt('ssim', '.4f')}, LPIPS* {fmt('lpips_star', '.2f')}"
         )
+        geo = metrics.get("geometry") or {}
+        if geo.get("status") == "ok":
+            final, hull = geo["final"], geo["hull"]
+            lines.append(
+                f"  mesh vs ground truth: Chamfer-L1 {final['chamfer_l1']:.4f} (visual hull "
+                f"{hull['chamfer_l1']:.4f}), F@1% {final['fscore_1pct']:.3f} ({hull['fscore_1pct']:.3f})"
+            )
     lines += what_you_got(files, show)
     if profile in ("example", "test"):
         nxt = (
@@ -163,6 +170,8 @@ WHAT = {
     "model.spz": "the model, ~10x smaller (Niantic .spz)",
     "model.splat": "the model for antimatter15-style web viewers (.splat)",
     "model.compressed.ply": "the model, compressed for SuperSplat",
+    "model.glb": "its surface as a coloured mesh (glTF 2.0: Blender, game engines, web pages)",
+    "model_mesh.ply": "the same mesh as .ply, in the scene's world frame",
     "report.html": "the report: metrics, 3D viewer, images (one self-contained file)",
     "turntable.gif": "turntable",
     "turntable.mp4": "turntable (video)",
