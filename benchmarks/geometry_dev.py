@@ -24,8 +24,8 @@ import numpy as np
 import torch
 from coarse_dev import DEV, coarse_params, hull_params, step_params_from_yaml, train_variant
 
+from go_core.coarse.hull import hull_bounds
 from go_core.gaussians import Gaussians
-from go_core.hull import hull_bounds
 from go_core.mesh.extract import mesh_from_gaussians
 from go_core.mesh.files import read_mesh_npz, write_glb, write_ply
 from go_core.mesh.hull_mesh import hull_mesh

@@ -26,7 +26,7 @@ def run(ctx, inputs: dict[str, Path], params: MeshParams) -> None:
     from dataclasses import asdict, fields
 
     from go_core.camera import fit_ellipse
-    from go_core.hull import hull_bounds
+    from go_core.coarse.hull import hull_bounds
     from go_core.mesh.extract import mesh_from_gaussians
     from go_core.mesh.files import write_glb, write_ply
     from go_core.mesh.hull_mesh import hull_mesh

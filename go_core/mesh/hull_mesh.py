@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from go_core.camera import Camera
-from go_core.hull import bilinear, hull_bounds, project
+from go_core.coarse.hull import bilinear, hull_bounds
 from go_core.mesh.surface import TriMesh, largest_component, marching_cubes
 from go_core.mesh.tsdf import VoxelGrid
 
@@ -22,7 +22,7 @@ def hull_field(
     pts = grid.centres().numpy()
     lowest = np.ones(len(pts), np.float32)
     for cam, mask in zip(cameras, masks, strict=True):
-        uv, z = project(cam, pts)
+        uv, z = cam.project(pts)
         ok = (z > 0) & np.isfinite(uv).all(1)
         ok &= (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
         value = np.zeros(len(pts), np.float32)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from go_core.config import setting
 from go_core.coarse.settings import Backend
+from go_core.config import setting
 
 
 @dataclass

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from go_core.camera import Camera, fit_ellipse, look_at, look_at_point
-from go_core.trajectory import turntable_cameras
+from go_core.render.trajectory import turntable_cameras
 
 
 def _resized(like: Camera, max_size: int) -> Camera:

@@ -222,7 +222,8 @@ def aggregate(flat: list[dict[str, Any]]) -> dict[str, Any]:
     """Mean of each metric and time over the scenes that have it."""
     ok = [r for r in flat if r["status"] == "ok"]
     out: dict[str, Any] = {"scenes": len(flat), "ok": len(ok), "failed": len(flat) - len(ok)}
-    for key in (*METRIC_COLUMNS, *GEOMETRY_COLUMNS, "batch_wall_s", "total_wall_s", "total_cpu_s", "peak_mem_mb"):
+    times = ("batch_wall_s", "total_wall_s", "total_cpu_s", "peak_mem_mb")
+    for key in (*METRIC_COLUMNS, *GEOMETRY_COLUMNS, *times):
         vals = [r[key] for r in ok if isinstance(r.get(key), (int, float))]
         out[f"mean_{key}"] = sum(vals) / len(vals) if vals else None
     return out
