@@ -163,7 +163,7 @@ def evaluate(g, scene) -> dict:
     return res
 
 
-def run_variant(
+def train_variant(
     scene,
     name: str,
     iterations: int,
@@ -172,9 +172,9 @@ def run_variant(
     random_points: int = 20_000,
     base: dict | None = None,
     hull: dict | None = None,
-) -> dict:
-    """One variant on one scene; ``base`` the coarse params and ``hull`` the hull step's (default:
-    pipeline.yaml's defaults)."""
+):
+    """Train one variant on one scene; ``base`` the coarse params and ``hull`` the hull step's (default:
+    pipeline.yaml's defaults). Returns (Gaussians, training stats, a dict of params and seconds)."""
     hull = hull or hull_params(None)
     spec = variant_spec(name)
     cams = scene.train_cameras
@@ -209,8 +209,19 @@ def run_variant(
     views = [TrainView.from_arrays(v.camera, v.image, m) for v, m in zip(scene.train, masks, strict=True)]
     t1, w1 = time.process_time(), time.perf_counter()
     g, stats = optimize(init, views, config, generator=torch_generator(seed))
-    cpu = time.process_time() - t1
-    wall = time.perf_counter() - w1
+    run = {
+        "init_cpu_s": round(t_init, 2),
+        "coarse_cpu_s": round(time.process_time() - t1, 2),
+        "coarse_wall_s": round(time.perf_counter() - w1, 2),
+        "params": params,
+        "config": config.to_dict(),
+    }
+    return g, stats, run
+
+
+def run_variant(scene, name: str, iterations: int, seed: int, extra: dict, **kwargs) -> dict:
+    """One variant on one scene (``train_variant``'s keyword arguments), scored on the test views."""
+    g, stats, run = train_variant(scene, name, iterations, seed, extra, **kwargs)
     metrics = evaluate(g, scene)
     return {
         **metrics,
@@ -218,11 +229,7 @@ def run_variant(
         "max_gaussians_seen": stats.max_count,
         "floaters_removed": stats.floaters_removed,
         "densify": stats.densify,
-        "init_cpu_s": round(t_init, 2),
-        "coarse_cpu_s": round(cpu, 2),
-        "coarse_wall_s": round(wall, 2),
-        "params": params,
-        "config": config.to_dict(),
+        **run,
     }
 
 
@@ -358,7 +365,16 @@ def main(argv=None) -> int:
         scene = load_scene(args.data / name, max_size=args.max_size)
         result["scenes"][name] = {"resolution": [scene.train[0].camera.width, scene.train[0].camera.height]}
         for variant in args.variants:
-            r = run_variant(scene, variant, args.iterations, args.seed, extra, args.random_points, base, hull)
+            r = run_variant(
+                scene,
+                variant,
+                args.iterations,
+                args.seed,
+                extra,
+                random_points=args.random_points,
+                base=base,
+                hull=hull,
+            )
             result["scenes"][name][variant] = r
             print(
                 f"{name:14s} {variant:12s} PSNR {r['psnr']:6.2f}  SSIM {r['ssim']:.4f}  "

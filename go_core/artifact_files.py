@@ -52,8 +52,16 @@ POINT_CLOUD = Artifact("point_cloud.ply", "the final Gaussians in the 3DGS PLY l
 TURNTABLE = Artifact("turntable.gif", "frames on the ellipse of the training cameras")
 CONTACT_SHEET = Artifact("contact_sheet.png", "a few turntable frames side by side")
 CAMERA_PATH_VIDEO = Artifact("camera_path.mp4", "a video along a closed path through the training cameras")
+MESH_PLY = Artifact("model_mesh.ply", "the final model's surface: binary PLY, world frame, vertex colours")
+MESH_GLB = Artifact("model.glb", "the same mesh as glTF 2.0 binary (+Y up, centred)")
+HULL_MESH = Artifact("hull_mesh.ply", "the visual hull's surface (the geometry baseline)")
+MESH_INFO = Artifact("mesh.json", "mesh extraction: settings, counts, seconds")
+GT_MESH = Artifact("mesh_world.npz", "ground-truth mesh of the scene folder, when it has one (evaluation)")
 METRICS = Artifact("metrics.json", "test-view PSNR / SSIM / LPIPS (metrics schema)")
 TEST_GRID = Artifact("test_grid.png", "ground truth, render and error map of test views")
+GEOMETRY_PICTURE = Artifact(
+    "geometry.png", "ground-truth mesh | final mesh | visual hull mesh, one test view"
+)
 
 STATUS_OK = "ok"
 STATUS_SKIPPED = "skipped"
@@ -86,8 +94,14 @@ __all__ = [
     "TURNTABLE",
     "CONTACT_SHEET",
     "CAMERA_PATH_VIDEO",
+    "MESH_PLY",
+    "MESH_GLB",
+    "HULL_MESH",
+    "MESH_INFO",
+    "GT_MESH",
     "METRICS",
     "TEST_GRID",
+    "GEOMETRY_PICTURE",
     "STATUS_OK",
     "STATUS_SKIPPED",
 ]

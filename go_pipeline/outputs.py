@@ -4,6 +4,8 @@ stable names, each written atomically (a temp file renamed into place):
 ```
 model.ply        the final model (export step), INRIA layout
 model.spz        the same model as Niantic .spz (export.formats; also model.splat, model.compressed.ply)
+model.glb        its surface as a coloured mesh, glTF 2.0 binary (mesh step)
+model_mesh.ply   the same mesh as PLY, in the scene's world frame (mesh step)
 turntable.gif    the turntable (turntable step); turntable.mp4 / camera_path.mp4 when the step made them
 contact_sheet.png  a few turntable frames side by side (turntable step)
 metrics.json     PSNR / SSIM / LPIPS per test view and mean (eval step)
@@ -32,6 +34,8 @@ INDEX = "index.json"
 COPIED = {
     "model.ply": ("export", art.POINT_CLOUD.file),
     **{FILE_NAMES[f]: ("export", FILE_NAMES[f]) for f in ("spz", "splat", "compressed_ply")},
+    "model.glb": ("mesh", art.MESH_GLB.file),
+    "model_mesh.ply": ("mesh", art.MESH_PLY.file),
     "turntable.gif": ("turntable", art.TURNTABLE.file),
     "contact_sheet.png": ("turntable", art.CONTACT_SHEET.file),
     "turntable.mp4": ("turntable", "turntable.mp4"),
@@ -141,6 +145,13 @@ def result_lines(
             f"  {len(metrics.get('views', []))} test views: PSNR {fmt('psnr', '.2f', ' dB')}, "
             f"SSIM {fmt('ssim', '.4f')}, LPIPS* {fmt('lpips_star', '.2f')}"
         )
+        geo = metrics.get("geometry") or {}
+        if geo.get("status") == "ok":
+            final, hull = geo["final"], geo["hull"]
+            lines.append(
+                f"  mesh vs ground truth: Chamfer-L1 {final['chamfer_l1']:.4f} (visual hull "
+                f"{hull['chamfer_l1']:.4f}), F@1% {final['fscore_1pct']:.3f} ({hull['fscore_1pct']:.3f})"
+            )
     lines += what_you_got(files, show)
     if profile in ("example", "test"):
         nxt = (
@@ -159,6 +170,8 @@ WHAT = {
     "model.spz": "the model, ~10x smaller (Niantic .spz)",
     "model.splat": "the model for antimatter15-style web viewers (.splat)",
     "model.compressed.ply": "the model, compressed for SuperSplat",
+    "model.glb": "its surface as a coloured mesh (glTF 2.0: Blender, game engines, web pages)",
+    "model_mesh.ply": "the same mesh as .ply, in the scene's world frame",
     "report.html": "the report: metrics, 3D viewer, images (one self-contained file)",
     "turntable.gif": "turntable",
     "turntable.mp4": "turntable (video)",

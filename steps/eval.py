@@ -7,7 +7,10 @@ LPIPS-alex over the full image, masked variants with ``masked: true``. Missing L
 as unavailable (None), never replaced by another number.
 
 Outputs: ``metrics.json`` (per view + mean), ``test_grid.png`` (rows: GT, render, error map; up to
-``grid_views`` test views, thumbnails of at most ``thumb_size`` px) for the report.
+``grid_views`` test views, thumbnails of at most ``thumb_size`` px) for the report. When the scene carries
+a ground-truth mesh and the mesh step ran, ``metrics.json`` has ``geometry`` (go_core.metrics.geometry:
+Chamfer-L1, F@1%/2%, normal consistency, test-view silhouette IoU of the final mesh and of the visual
+hull's mesh, the baseline) and ``geometry.png`` shows the ground truth, the final mesh and the hull mesh.
 """
 
 from __future__ import annotations
@@ -153,6 +156,35 @@ def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: Eval
     }
 
 
+def geometry(inputs: dict[str, Path], scene, cf: bool, params: EvalParams, ctx) -> dict | None:
+    """The ``geometry`` entry of metrics.json (and geometry.png), or a reason why there is none."""
+    from PIL import Image
+
+    from go_core.mesh.files import read_mesh_npz, read_ply
+    from go_core.mesh.picture import shaded
+    from go_core.metrics.geometry import score_meshes
+
+    mesh_dir = inputs.get("mesh")
+    if mesh_dir is None or not art.MESH_PLY.path(mesh_dir).is_file():
+        return {"status": art.STATUS_SKIPPED, "reason": "no mesh step in this pipeline"}
+    if not art.GT_MESH.path(inputs["scene"]).is_file():
+        return {"status": art.STATUS_SKIPPED, "reason": f"the scene has no ground-truth {art.GT_MESH.file}"}
+    if cf:
+        return {"status": art.STATUS_SKIPPED, "reason": "the model lives in its fitted cameras' frame (CF)"}
+    gt = read_mesh_npz(art.GT_MESH.path(inputs["scene"]))
+    meshes = {"final": read_ply(art.MESH_PLY.path(mesh_dir)), "hull": read_ply(art.HULL_MESH.path(mesh_dir))}
+    masks = [v.mask if v.mask is not None else np.ones((v.camera.height, v.camera.width)) for v in scene.test]
+    res = score_meshes(meshes, gt, scene.test_cameras, masks, params.geometry_samples, int(ctx.seed))
+    cam = scene.test_cameras[0]
+    picture = np.concatenate(
+        [shaded(gt, cam), shaded(meshes["final"], cam, use_colours=True), shaded(meshes["hull"], cam)], axis=1
+    )
+    atomic_write(
+        art.GEOMETRY_PICTURE.path(ctx.out_dir), lambda p: Image.fromarray(picture).save(p, format="PNG")
+    )
+    return {"status": art.STATUS_OK, **res}
+
+
 def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     from PIL import Image
 
@@ -205,6 +237,7 @@ def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
         "device": ctx.device,
         "views": per_view,
         "mean": mean,
+        "geometry": geometry(inputs, scene, bool(poses.get("cf")), params, ctx),
     }
     art.write_json(ctx.out_dir, art.METRICS, result)
     grid = grid_image(

@@ -22,6 +22,7 @@ from typing import Literal
 
 from go_core.coarse.settings import Backend, CoarseConfig
 from go_core.config import setting
+from go_core.mesh.settings import MeshSettings
 from go_core.repair.settings import LooSettings, RepairSettings
 
 Precision = Literal["auto", "bf16", "fp16", "fp32"]
@@ -210,6 +211,13 @@ class ExportParams:
 
 
 @dataclass
+class MeshParams(MeshSettings):
+    """Mesh extraction (go_core.mesh.extract.MeshSettings) and the visual hull's baseline mesh."""
+
+    hull_resolution: int = setting(128, ge=16, le=512, doc="voxels along the hull box's longest side")
+
+
+@dataclass
 class TurntableParams:
     frames: int = setting(60, ge=1, doc="frames on the ellipse fitted to the TRAINING cameras")
     path_frames: int = setting(15, ge=1, doc="camera_path.mp4: frames between consecutive training cameras")
@@ -229,4 +237,7 @@ class EvalParams:
     thumb_size: int = setting(128, ge=1, doc="longest side of each grid thumbnail, px")
     test_pose_iterations: int = setting(
         200, ge=0, doc="refined-pose models: per-test-view pose fit, model frozen"
+    )
+    geometry_samples: int = setting(
+        300_000, ge=1000, doc="points sampled on each surface for Chamfer / F-score (docs/geometry.md)"
     )

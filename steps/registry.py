@@ -72,10 +72,17 @@ STEPS: dict[str, StepDeclaration] = {
         skip_if_skipped=("tune",),
     ),
     "go_pipeline.steps.export": StepDeclaration(p.ExportParams, (art.POINT_CLOUD,)),
+    "go_pipeline.steps.mesh": StepDeclaration(
+        p.MeshParams, (art.MESH_PLY, art.MESH_GLB, art.HULL_MESH, art.MESH_INFO)
+    ),
     "go_pipeline.steps.turntable": StepDeclaration(
         p.TurntableParams, (art.TURNTABLE, art.CONTACT_SHEET, art.CAMERA_PATH_VIDEO)
     ),
-    "go_pipeline.steps.eval": StepDeclaration(p.EvalParams, (art.METRICS, art.TEST_GRID)),
+    "go_pipeline.steps.eval": StepDeclaration(
+        p.EvalParams,
+        (art.METRICS, art.TEST_GRID),
+        (art.GEOMETRY_PICTURE,),  # when the scene has a ground-truth mesh and the mesh step ran
+    ),
 }
 
 

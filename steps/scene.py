@@ -1,5 +1,6 @@
 """The ``scene`` step: read the scene folder, validate it, choose the training views, downscale, and write
-the artifact every downstream step reads (``go_core.scene.artifact``: ``scene.json`` + ``views.npz``)."""
+the artifact every downstream step reads (``go_core.scene.artifact``: ``scene.json`` + ``views.npz``, and
+``mesh_world.npz`` when the folder carries a ground-truth mesh: eval's geometry metrics)."""
 
 from __future__ import annotations
 
@@ -104,6 +105,20 @@ def _photo_scene(ctx, folder: Path, params: SceneParams):
     return scene, record
 
 
+def _copy_ground_truth_mesh(folder: Path, out_dir: Path) -> bool:
+    """Copy the folder's ground-truth ``mesh_world.npz`` (evaluation only: eval's geometry metrics), after
+    checking it; False when the folder has none."""
+    src = art.GT_MESH.path(folder)
+    if not src.is_file():
+        return False
+    from go_core.io.atomic import atomic_write_bytes
+    from go_core.mesh.files import read_mesh_npz
+
+    read_mesh_npz(src)  # one clear error for a malformed file
+    atomic_write_bytes(art.GT_MESH.path(out_dir), src.read_bytes())
+    return True
+
+
 def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
     """``inputs["folder"]`` is the raw scene folder (``folder: "@scene"`` in pipeline.yaml)."""
     from go_core.photos.folder import is_photo_folder
@@ -132,6 +147,7 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
         ctx.log.info("scene: training poses from %s", INITIAL_POSES_FILE)
     ingest = Ingest(views_requested=views, max_size=max_size, given_poses=given, poses=how)
     manifest = art.write_scene(ctx.out_dir, scene, ingest)
+    has_truth = _copy_ground_truth_mesh(Path(inputs["folder"]), ctx.out_dir)
     from go_pipeline.manifest import schema_problems
 
     problems = schema_problems("scene_manifest", manifest)
@@ -162,4 +178,5 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
         split_source=scene.split_source,
         downscaled_from=scene.original_max_side if 0 < max_size < scene.original_max_side else None,
         masks=sum(v.mask is not None for v in scene.train + scene.test),
+        ground_truth_mesh=has_truth,
     )

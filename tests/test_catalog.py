@@ -12,7 +12,7 @@ from go_pipeline.pipeline import load_pipeline
 from go_pipeline.steps.registry import STEPS
 
 REPO = Path(__file__).resolve().parents[1]
-FILE_NAME = re.compile(r"^[\w.-]+\.(npz|npy|json|png|gif|ply|safetensors|pt|jpg|csv|mp4)$")
+FILE_NAME = re.compile(r"^[\w.-]+\.(npz|npy|json|png|gif|ply|safetensors|pt|jpg|csv|mp4|glb)$")
 
 
 def _catalogue() -> list[art.Artifact]:

@@ -199,8 +199,16 @@ def test_run_example_end_to_end(tmp_path, toy):
     # findable results: the model and its metrics, the paths, the next command
     assert "\nresult: the repair model" in "\n" + done.stdout and "test views: PSNR " in done.stdout
     assert "compact:realesr-animevideov3-x4 (fine-tuned)" in done.stdout  # the repair model that ran
-    for name in ("model.ply", "turntable.gif", "camera_path.mp4", "metrics.json", "report.html"):
+    for name in (
+        "model.ply",
+        "model.glb",
+        "model_mesh.ply",
+        "turntable.gif",
+        "camera_path.mp4",
+        "metrics.json",
+    ):
         assert (scene / ".go" / "outputs" / name).is_file(), name
+    assert (scene / ".go" / "outputs" / "report.html").is_file()
     assert "next: " in plain.stdout
 
 

@@ -19,6 +19,20 @@ from go_core.errors import GoError
 from go_core.io.atomic import atomic_write_json, atomic_write_text
 
 METRIC_COLUMNS = ("psnr", "ssim", "lpips_vgg", "lpips_star", "lpips_alex")
+# geometry (scenes with a ground-truth mesh): the final mesh's and the visual hull's
+GEOMETRY_COLUMNS = ("chamfer_l1", "fscore_1pct", "hull_chamfer_l1", "hull_fscore_1pct")
+
+
+def geometry_columns(report: dict) -> dict[str, Any]:
+    """The batch table's geometry columns of one scene's report (None where it has no geometry)."""
+    meshes = (((report.get("metrics") or {}).get("geometry") or {}).get("meshes")) or {}
+    final, hull = meshes.get("final") or {}, meshes.get("hull") or {}
+    return {
+        "chamfer_l1": final.get("chamfer_l1"),
+        "fscore_1pct": final.get("fscore_1pct"),
+        "hull_chamfer_l1": hull.get("chamfer_l1"),
+        "hull_fscore_1pct": hull.get("fscore_1pct"),
+    }
 
 
 def find_scenes(root: str | Path) -> list[Path]:
@@ -190,6 +204,7 @@ def table_rows(result: BatchResult) -> list[dict[str, Any]]:
             "model": res.get("model") or "",
             "num_gaussians": res.get("num_gaussians"),
             **{k: mean.get(k) for k in METRIC_COLUMNS},
+            **geometry_columns(rep),
             "total_wall_s": (rep.get("totals") or {}).get("wall_s"),
             "total_cpu_s": (rep.get("totals") or {}).get("cpu_s"),
             "peak_mem_mb": (rep.get("totals") or {}).get("peak_mem_mb"),
@@ -207,7 +222,8 @@ def aggregate(flat: list[dict[str, Any]]) -> dict[str, Any]:
     """Mean of each metric and time over the scenes that have it."""
     ok = [r for r in flat if r["status"] == "ok"]
     out: dict[str, Any] = {"scenes": len(flat), "ok": len(ok), "failed": len(flat) - len(ok)}
-    for key in (*METRIC_COLUMNS, "batch_wall_s", "total_wall_s", "total_cpu_s", "peak_mem_mb"):
+    times = ("batch_wall_s", "total_wall_s", "total_cpu_s", "peak_mem_mb")
+    for key in (*METRIC_COLUMNS, *GEOMETRY_COLUMNS, *times):
         vals = [r[key] for r in ok if isinstance(r.get(key), (int, float))]
         out[f"mean_{key}"] = sum(vals) / len(vals) if vals else None
     return out
@@ -263,20 +279,24 @@ def _markdown(flat: list[dict[str, Any]], agg: dict[str, Any], result: BatchResu
         "their artifacts were made (cached steps included, so it can exceed this batch's time).",
         "",
         "| scene | status | model | Gaussians | PSNR | SSIM | LPIPS* | LPIPS-alex "
-        "| this batch s | steps ran | artifacts' wall s | CPU s | peak MiB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| Chamfer (hull) | F@1% (hull) | this batch s | steps ran | artifacts' wall s | CPU s | peak MiB |",
+        "|" + "---|" * 15,
     ]
     for r in flat:
         status = r["status"] if not r["error"] else f"{r['status']}: {r['error']}".replace("|", "/")
         lines.append(
             f"| {r['scene']} | {status} | {r['model'] or 'n/a'} | {f(r['num_gaussians'])} | "
             f"{f(r['psnr'], '.2f')} | {f(r['ssim'], '.4f')} | {f(r['lpips_star'], '.2f')} | "
-            f"{f(r['lpips_alex'], '.4f')} | {f(r['batch_wall_s'], '.1f')} | {f(r['steps_ran'])} | "
+            f"{f(r['lpips_alex'], '.4f')} | {f(r['chamfer_l1'], '.4f')} ({f(r['hull_chamfer_l1'], '.4f')}) | "
+            f"{f(r['fscore_1pct'], '.3f')} ({f(r['hull_fscore_1pct'], '.3f')}) | "
+            f"{f(r['batch_wall_s'], '.1f')} | {f(r['steps_ran'])} | "
             f"{f(r['total_wall_s'], '.1f')} | {f(r['total_cpu_s'], '.1f')} | {f(r['peak_mem_mb'], '.0f')} |"
         )
     lines.append(
         f"| **mean** | | | | {f(agg['mean_psnr'], '.2f')} | {f(agg['mean_ssim'], '.4f')} | "
         f"{f(agg['mean_lpips_star'], '.2f')} | {f(agg['mean_lpips_alex'], '.4f')} | "
+        f"{f(agg['mean_chamfer_l1'], '.4f')} ({f(agg['mean_hull_chamfer_l1'], '.4f')}) | "
+        f"{f(agg['mean_fscore_1pct'], '.3f')} ({f(agg['mean_hull_fscore_1pct'], '.3f')}) | "
         f"{f(agg['mean_batch_wall_s'], '.1f')} | | "
         f"{f(agg['mean_total_wall_s'], '.1f')} | {f(agg['mean_total_cpu_s'], '.1f')} | "
         f"{f(agg['mean_peak_mem_mb'], '.0f')} |"

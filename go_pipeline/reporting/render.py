@@ -9,6 +9,33 @@ from pathlib import Path
 from typing import Any
 
 GRID_CAPTION = "columns: the test views; rows: ground truth, render, error |render - GT|"
+GEOMETRY_CAPTION = (
+    "the first test view: ground-truth mesh | the final model's mesh (vertex colours) | "
+    "the visual hull's mesh"
+)
+GEOMETRY_HEAD = ["mesh", "Chamfer-L1", "F@1%", "F@2%", "normal consistency", "silhouette IoU"]
+
+
+def geometry_rows(report: dict) -> tuple[list[list[str]], str]:
+    """Rows of the geometry table (final mesh, hull mesh) and a line saying how they were measured or why
+    there are none."""
+    g = (report.get("metrics") or {}).get("geometry")
+    if not g:
+        return [], ""
+    if g.get("status") != "ok":
+        return [], f"no geometry metrics: {g.get('reason', '')}"
+    rows = [
+        [name, *(_fmt(m.get(k), ".4f") for k in ("chamfer_l1", "fscore_1pct", "fscore_2pct"))]
+        + [_fmt(m.get("normal_consistency"), ".4f"), _fmt(m.get("silhouette_iou"), ".4f")]
+        for name, m in g["meshes"].items()
+    ]
+    p = g.get("protocol", {})
+    note = (
+        f"against the scene's ground-truth mesh: {p.get('samples_per_surface')} points per surface "
+        f"(seed {p.get('seed')}), F-score at {p.get('fscore_thresholds', '')}; "
+        "silhouette IoU on the test views"
+    )
+    return rows, note
 
 
 def _fmt(v: Any, spec: str = ".3f") -> str:
@@ -196,6 +223,7 @@ def _assets(report: dict, out_dir: Path) -> dict[str, str]:
         ("turntable", "turntable.gif"),
         ("contact_sheet", "contact_sheet.png"),
         ("camera_path", "camera_path.mp4"),
+        ("geometry", "geometry.png"),
     ):
         found = report.get("images", {}).get(key)
         if found and Path(found).is_file():
@@ -302,6 +330,13 @@ def write_markdown(report: dict, out_dir: Path) -> Path:
         lines += ["## Contact sheet", "", f"![contact sheet]({assets['contact_sheet']})", ""]
     if "camera_path" in assets:
         lines += [f"Video along the camera path: [{assets['camera_path']}]({assets['camera_path']})", ""]
+    geo_rows, geo_note = geometry_rows(report)
+    if geo_rows or geo_note:
+        lines += ["## Geometry", "", geo_note, ""] + (
+            table(GEOMETRY_HEAD, geo_rows) + [""] if geo_rows else []
+        )
+    if "geometry" in assets:
+        lines += [GEOMETRY_CAPTION, "", f"![meshes]({assets['geometry']})", ""]
     if "curves" in assets:
         lines += ["## Training curves", "", f"![training curves]({assets['curves']})", ""]
     if vr:
@@ -380,6 +415,13 @@ def html_report(report: dict) -> str:
                 f"<video src='{uris['camera_path']}' controls loop muted autoplay playsinline></video>"
             )
         parts.append("</p>")
+    geo_rows, geo_note = geometry_rows(report)
+    if geo_rows or geo_note:
+        parts.append(
+            f"<h2>Geometry</h2><p>{e(geo_note)}</p>" + (table(GEOMETRY_HEAD, geo_rows) if geo_rows else "")
+        )
+    if "geometry" in uris:
+        parts.append(f"<p>{e(GEOMETRY_CAPTION)}</p><img src='{uris['geometry']}' alt='meshes'>")
     if "contact_sheet" in uris:
         parts.append(f"<h2>Contact sheet</h2><img src='{uris['contact_sheet']}' alt='contact sheet'>")
     if "curves" in uris:

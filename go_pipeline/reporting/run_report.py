@@ -19,6 +19,7 @@ from go_pipeline import store
 REPORT_SCHEMA_ID = "go-pipeline/run-report"
 REPORT_VERSION = 1
 METRIC_KEYS = ("psnr", "ssim", "lpips_vgg", "lpips_alex", "lpips_star")
+GEOMETRY_KEYS = ("chamfer_l1", "fscore_1pct", "fscore_2pct", "normal_consistency", "silhouette_iou")
 
 
 def schema_path() -> Path:
@@ -137,8 +138,9 @@ def build_report(
     for name in (s["name"] for s in steps):
         libraries.update(manifests[name].get("libraries", {}))
     images = {}
-    if metrics_dir is not None and art.TEST_GRID.path(metrics_dir).is_file():
-        images["test_grid"] = str(art.TEST_GRID.path(metrics_dir))
+    for label, artifact in (("test_grid", art.TEST_GRID), ("geometry", art.GEOMETRY_PICTURE)):
+        if metrics_dir is not None and artifact.path(metrics_dir).is_file():
+            images[label] = str(artifact.path(metrics_dir))
     files = {}
     for label, step, name in (
         ("turntable", "turntable", art.TURNTABLE.file),
@@ -149,6 +151,8 @@ def build_report(
         ("model_ply", "export", art.POINT_CLOUD.file),
         ("model_spz", "export", FILE_NAMES["spz"]),
         ("scene_cameras", "scene", art.SCENE_INFO.file),
+        ("model_glb", "mesh", art.MESH_GLB.file),
+        ("model_mesh", "mesh", art.MESH_PLY.file),
     ):
         found = store.artifact_dir(wd, step) if step in manifests else None
         if found is not None and (found / name).is_file():
@@ -226,4 +230,19 @@ def _metrics_block(metrics: dict | None) -> dict[str, Any] | None:
         ],
         "lpips_status": metrics.get("lpips_status", {}),
         "protocol": metrics.get("protocol", {}),
+        "geometry": geometry_block(metrics.get("geometry")),
+    }
+
+
+def geometry_block(geometry: dict | None) -> dict[str, Any] | None:
+    """metrics.json's ``geometry``, reduced to the report's figures per mesh (final, hull), or why none."""
+    if geometry is None:
+        return None
+    if geometry.get("status") != art.STATUS_OK:
+        return {"status": geometry.get("status"), "reason": geometry.get("reason", "")}
+    meshes = {k: v for k, v in geometry.items() if isinstance(v, dict) and "chamfer_l1" in v}
+    return {
+        "status": art.STATUS_OK,
+        "meshes": {name: {k: m.get(k) for k in GEOMETRY_KEYS} for name, m in meshes.items()},
+        "protocol": geometry.get("protocol", {}),
     }

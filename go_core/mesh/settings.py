@@ -1,0 +1,23 @@
+"""The mesh extraction's settings (torch-free: the runner checks them at plan time)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from go_core.coarse.settings import Backend
+from go_core.config import setting
+
+
+@dataclass
+class MeshSettings:
+    """How a mesh is extracted (the ``mesh`` step's params, docs/geometry.md)."""
+
+    resolution: int = setting(160, ge=16, le=512, doc="voxels along the longest side of the hull's box")
+    truncation_voxels: float = setting(3.0, gt=0, doc="TSDF truncation in voxels (docs/geometry.md)")
+    alpha_threshold: float = setting(0.5, gt=0, lt=1, doc="rendered alpha >= this is surface, below: empty")
+    ellipse_views: int = setting(24, ge=0, doc="fusion views on the ellipse of the training cameras")
+    sphere_views: int = setting(40, ge=0, doc="fusion views on a Fibonacci sphere around the object")
+    max_size: int = setting(256, ge=16, doc="longest image side of the fusion renders, px")
+    max_faces: int = setting(200_000, ge=0, doc="decimation budget (0: keep every marching-cubes face)")
+    batch: int = setting(8, ge=1, doc="cameras rendered per rasterizer call")
+    backend: Backend = setting("auto", doc="renderer backend")
