@@ -80,10 +80,10 @@ def silhouette_error(alphas: list[np.ndarray], masks: list[np.ndarray], erode: i
 def score_model(gaussians, scene, suite) -> tuple[dict, list[np.ndarray]]:
     """Eval-step metrics (mean over the test views), silhouette error of ``gaussians``, and the renders."""
     import torch
+    from go_pipeline.steps.eval import evaluate_scene
 
     from go_core.metrics.evaluate import mean_metrics
     from go_core.render import render_camera
-    from go_pipeline.steps.eval import evaluate_scene
 
     renders, alphas = [], []
     white = torch.ones(3)

@@ -13,10 +13,11 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
-from go_core import artifacts as art
-from go_core.errors import GoError
 from go_pipeline.steps._common import ResumedProgress
 from go_pipeline.steps.weights import compact_info, weight_paths
+
+from go_core import artifacts as art
+from go_core.errors import GoError
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import RepairParams, TuneParams

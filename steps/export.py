@@ -7,10 +7,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from go_pipeline.steps._common import final_model
+
 from go_core import artifacts as art
 from go_core import formats
 from go_core.ply import save_ply
-from go_pipeline.steps._common import final_model
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import ExportParams

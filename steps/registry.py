@@ -13,8 +13,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-from go_core import artifacts as art
 from go_pipeline.steps import params as p
+
+from go_core import artifacts as art
 
 
 @dataclass(frozen=True)

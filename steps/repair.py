@@ -27,12 +27,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from go_pipeline.steps._common import ResumedProgress, write_skipped
+from go_pipeline.steps._repair_models import repair_model_named
+
 from go_core import artifacts as art
 from go_core.errors import GoError, first_line
 from go_core.io.atomic import atomic_write
 from go_core.io.curves import write_curves
-from go_pipeline.steps._common import ResumedProgress, write_skipped
-from go_pipeline.steps._repair_models import repair_model_named
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import RepairParams

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
+from go_pipeline.steps._common import final_model
 
 from go_core import artifacts as art
 from go_core.gaussians import Gaussians
@@ -17,7 +18,6 @@ from go_core.io.atomic import atomic_write
 from go_core.io.images import to_uint8
 from go_core.render import render_camera
 from go_core.render.trajectory import camera_path_cameras, contact_sheet, turntable_cameras
-from go_pipeline.steps._common import final_model
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import TurntableParams

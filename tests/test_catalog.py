@@ -7,9 +7,10 @@ import ast
 import re
 from pathlib import Path
 
+from go_pipeline.steps.registry import STEPS
+
 from go_core import artifacts as art
 from go_pipeline.pipeline import load_pipeline
-from go_pipeline.steps.registry import STEPS
 
 REPO = Path(__file__).resolve().parents[1]
 FILE_NAME = re.compile(r"^[\w.-]+\.(npz|npy|json|png|gif|ply|safetensors|pt|jpg|csv|mp4|glb)$")

@@ -180,8 +180,9 @@ def test_runner_skips_on_an_empty_param_without_a_worker(toy, monkeypatch):
 
 
 def test_depth_step_declares_its_runner_skip():
-    from go_pipeline.skipping import param_skip
     from go_pipeline.steps.registry import DEPTH_SKIP_REASON, STEPS
+
+    from go_pipeline.skipping import param_skip
 
     rule = STEPS["go_pipeline.steps.depth"].skip_if_empty
     record = param_skip(rule, {"model_path": ""})

@@ -76,9 +76,10 @@ def _scene(root: Path) -> Path:
 
 
 def test_steps_end_to_end(tmp_path):
-    from go_pipeline.skipping import param_skip, write_skipped_outputs
     from go_pipeline.steps import coarse, depth, export, hull, mask, turntable
     from go_pipeline.steps.registry import STEPS
+
+    from go_pipeline.skipping import param_skip, write_skipped_outputs
 
     inputs = {"scene": _scene(tmp_path)}
     ctx = Ctx(tmp_path, "mask")
@@ -173,9 +174,10 @@ def test_steps_end_to_end(tmp_path):
 
 
 def test_mask_step_rejects_bad_choices(tmp_path):
+    from go_pipeline.steps import mask
+
     from go_core.config import SettingError
     from go_core.errors import PipelineError
-    from go_pipeline.steps import mask
 
     inputs = {"scene": _scene(tmp_path)}
     with pytest.raises(SettingError, match="method: must be one of 'auto' | 'provided'"):
@@ -190,9 +192,10 @@ def test_a_collapsed_coarse_model_is_an_error_not_a_result(tmp_path, monkeypatch
     """When optimisation leaves almost no Gaussians (pruning never removes the last one, so the loop is
     stood in for by one that ends with 3 of 500), the step fails with CollapsedModelError and writes no
     gaussians.npz."""
+    from go_pipeline.steps import coarse, hull, mask
+
     from go_core.coarse.loop import TrainStats
     from go_core.errors import CollapsedModelError
-    from go_pipeline.steps import coarse, hull, mask
 
     inputs = {"scene": _scene(tmp_path)}
     ctx = Ctx(tmp_path, "mask")

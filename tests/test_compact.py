@@ -139,9 +139,10 @@ def test_ncnn_param_parser_reads_arrays_and_refuses_unknown_layers():
 
 @pytest.mark.parametrize("damage", ["missing", "partial", "corrupt"])
 def test_bad_compact_weights_are_one_error_naming_file_and_fetch(tmp_path, monkeypatch, damage):
+    from go_pipeline.steps import weights
+
     from go_core.compact.weights import compact_path
     from go_core.errors import MissingWeightsError
-    from go_pipeline.steps import weights
 
     root = tmp_path / "cache"
     path = tiny_compact(root)

@@ -8,8 +8,9 @@ import dataclasses
 import re
 from pathlib import Path
 
-from go_core.config import to_mapping
 from go_pipeline.steps.registry import STEPS, upstream_fields
+
+from go_core.config import to_mapping
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -72,9 +72,8 @@ def test_depth_artifact_round_trip_and_skip(tmp_path):
 
 
 def test_depth_step_with_a_local_model_writes_one_map_per_training_view(tiny_dpt, tmp_path):
-    from test_coarse_steps import Ctx, _scene
-
     from go_pipeline.steps import depth
+    from test_coarse_steps import Ctx, _scene
 
     folder, _ = tiny_dpt
     inputs = {"scene": _scene(tmp_path)}

@@ -68,8 +68,9 @@ def test_loo_pairs_and_statistics(done):
 
 
 def test_killed_loo_resumes_without_redoing_finished_runs(done, tmp_path, monkeypatch):
-    from go_core.repair import loo as core
     from go_pipeline.steps import loo
+
+    from go_core.repair import loo as core
 
     _, dirs, first = done
     calls: list[int] = []

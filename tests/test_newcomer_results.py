@@ -185,8 +185,9 @@ def test_docs_name_only_result_files_that_exist():
 
 
 def test_export_formats_param():
-    from go_core.config import SettingError, check_value
     from go_pipeline.steps.params import ExportParams
+
+    from go_core.config import SettingError, check_value
 
     assert ExportParams().formats == ("ply", "spz")
     assert ExportParams(formats=("spz",)).check() == [
@@ -208,8 +209,9 @@ def test_another_steps_param_skips_a_step_and_is_in_its_key():
 
 
 def test_weights_step_skips_under_the_no_repair_ablation():
-    from go_pipeline.skipping import foreign_param_skip
     from go_pipeline.steps.registry import declaration
+
+    from go_pipeline.skipping import foreign_param_skip
 
     rule = declaration("go_pipeline.steps.weights").skip_if_param
     assert foreign_param_skip(rule, {"repair": {"mode": "no_repair"}})["status"] == "skipped"

@@ -10,12 +10,12 @@ from dataclasses import fields
 from pathlib import Path
 
 import pytest
+from go_pipeline.steps.params import CoarseParams, LooParams, RepairParams
+from go_pipeline.steps.registry import STEPS, upstream_fields
 
 from go_core.config import field_types, to_mapping
 from go_core.errors import PipelineError
 from go_pipeline.pipeline import load_pipeline, step_params
-from go_pipeline.steps.params import CoarseParams, LooParams, RepairParams
-from go_pipeline.steps.registry import STEPS, upstream_fields
 
 PARAMS_CLASSES = {module: declared.params for module, declared in STEPS.items()}
 

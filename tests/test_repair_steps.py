@@ -84,9 +84,10 @@ def test_noise_pairs_step_fixes_config(upstream):
 def test_without_weights_the_runner_skips_tune_and_repair(upstream, tmp_path):
     """sd15 chosen without its weights: the weights step says why, in full, once; the runner then skips tune
     and repair without a worker (their declarations in steps/registry.py), and the final model is coarse."""
+    from go_pipeline.steps.registry import STEPS
+
     from go_core import artifacts
     from go_pipeline.skipping import cascade_skip, write_skipped_outputs
-    from go_pipeline.steps.registry import STEPS
 
     _, dirs, _ = upstream
     wctx_dir = run_weights_step(tmp_path / "w", {})
@@ -150,11 +151,12 @@ def test_killed_lora_step_resumes_from_last_checkpoint(upstream, tmp_path, monke
 
 
 def test_repair_end_to_end_views_on_arcs_and_formulas(upstream, tmp_path):
+    from go_pipeline.steps import repair
+
     from go_core import artifacts
     from go_core.diffusion.configs import SD15_SCHEDULER
     from go_core.repair.arcs import RepairArcs
     from go_core.scene.artifact import load_scene_artifact
-    from go_pipeline.steps import repair
 
     _, dirs, weights = upstream
     lctx = _tune(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0})

@@ -28,8 +28,9 @@ def test_wrong_weight_path_is_an_error_not_a_skip(tmp_path):
 def test_loo_and_noise_pairs_skip_without_reading_anything_else(tmp_path):
     """Without weights the runner skips loo and noise_pairs from their declarations (steps/registry.py):
     no worker, so nothing else is read; the skipped outputs are a skipped .json and an empty .npz."""
-    from go_pipeline.skipping import cascade_skip, write_skipped_outputs
     from go_pipeline.steps.registry import STEPS
+
+    from go_pipeline.skipping import cascade_skip, write_skipped_outputs
 
     record = json.loads((weights_artifact(tmp_path / "w", status="missing") / "weights.json").read_text())
     done = {"weights": {"record": {"status": "skipped", "reason": record["reason"]}}}
