@@ -10,7 +10,7 @@ JOB.json: ``meshes`` (OBJ paths, joined into one object), ``up`` ("Y" or "Z": th
 (scene folder), ``res``, ``samples``, ``threads``, ``fov_deg``, ``radius``, ``views`` ({"train": [[az, el],
 ...], "test": [...]} in degrees), ``hdri`` (a Blender studio-light name), ``hdri_strength``,
 ``hdri_rotation_deg``, ``sun_strength``, ``sun_elevation_deg``, ``sun_azimuth_deg``, ``roughness`` (< 0 keeps
-the file's), ``seed`` (Cycles' sampling seed).
+the file's), ``seed`` (Cycles' sampling seed), optional ``max_bounces`` (4) and ``adaptive_threshold`` (0.02).
 
 The scene follows the dev sets' protocol (shared tools' make_scene.py): the object's bounding box centred at
 the origin, its bounding sphere scaled to radius 1, +Z up, cameras at ``radius`` looking at the origin with a
@@ -122,9 +122,10 @@ def setup_render(job):
     sc.cycles.samples = int(job["samples"])
     sc.cycles.seed = int(job["seed"])
     sc.cycles.use_adaptive_sampling = True
+    sc.cycles.adaptive_threshold = float(job.get("adaptive_threshold", 0.02))
     sc.cycles.use_denoising = True
     sc.cycles.denoiser = "OPENIMAGEDENOISE"
-    sc.cycles.max_bounces = 6
+    sc.cycles.max_bounces = int(job.get("max_bounces", 4))
     sc.render.threads_mode = "FIXED"
     sc.render.threads = int(job["threads"])
     sc.render.resolution_x = sc.render.resolution_y = int(job["res"])

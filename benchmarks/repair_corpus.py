@@ -217,6 +217,7 @@ def make_object(entry: dict, assets_root: Path, args) -> dict:
         "name": entry["name"],
         "split": entry["split"],
         "views": views.to_dict(),
+        "samples": json.loads((folder / "render_job.json").read_text())["samples"],
         "novel_pairs": int(len(arrays["novel_rgba"])),
         "train_views": int(len(arrays["train_rgba"])),
         "gaussians": coarse_info["gaussians"],
@@ -231,6 +232,25 @@ def make_object(entry: dict, assets_root: Path, args) -> dict:
     shutil.rmtree(folder / "work", ignore_errors=True)
     atomic_write_json(folder / "object.json", info)
     return info
+
+
+OBJECT_FIELDS = (
+    "split",
+    "samples",
+    "novel_pairs",
+    "gaussians",
+    "novel_psnr_mean",
+    "novel_silhouette_iou_mean",
+    "cpu_s",
+)
+
+
+def _object_row(out: Path, info: dict) -> dict:
+    """The manifest's line for one finished object (the samples from its render job when not recorded)."""
+    if "samples" not in info:
+        job = out / "objects" / info["name"].replace("/", "__") / "render_job.json"
+        info = {**info, "samples": json.loads(job.read_text())["samples"]}
+    return {k: info[k] for k in OBJECT_FIELDS}
 
 
 def write_manifest(args, index: dict) -> dict:
@@ -278,20 +298,7 @@ def write_manifest(args, index: dict) -> dict:
             {k: e[k] for k in ("name", "licence", "split", "group", "nearest", "chamfer", "ratio_gap")}
             for e in kept
         ],
-        "objects": {
-            n: {
-                k: d[k]
-                for k in (
-                    "split",
-                    "novel_pairs",
-                    "gaussians",
-                    "novel_psnr_mean",
-                    "novel_silhouette_iou_mean",
-                    "cpu_s",
-                )
-            }
-            for n, d in done.items()
-        },
+        "objects": {n: _object_row(args.out, d) for n, d in done.items()},
     }
     if args.manifest is not None:
         from go_core.io.atomic import atomic_write_json
@@ -316,11 +323,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--manifest", type=Path, default=None, help="JSON summary to write (committed)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--res", type=int, default=256)
-    ap.add_argument("--samples", type=int, default=32, help="Cycles samples per pixel (denoised)")
+    ap.add_argument("--samples", type=int, default=16, help="Cycles samples per pixel (denoised)")
     ap.add_argument("--novel", type=int, default=24, help="novel views per object")
     ap.add_argument("--val-fraction", type=float, default=0.15)
     ap.add_argument("--profile", default=None, help="go-pipeline profile (default: the default settings)")
-    ap.add_argument("--budget-min", type=float, default=12.0, help="start no object after this many minutes")
+    ap.add_argument(
+        "--budget-min",
+        type=float,
+        default=12.0,
+        help="start no object that would end after this many minutes",
+    )
     ap.add_argument("--limit", type=int, default=0, help="make at most this many objects in this call")
     ap.add_argument("--only", nargs="*", default=None, help="object names to make (default: all usable)")
     return ap.parse_args(argv)
@@ -345,11 +357,16 @@ def main(argv=None) -> int:
         if (args.only is None or e["name"] in args.only)
         and not (args.out / "objects" / e["name"].replace("/", "__") / "object.json").exists()
     ]
-    made = 0
+    made, durations = 0, []
     for entry in pending:
-        if (time.perf_counter() - t_start) / 60 > args.budget_min or (args.limit and made >= args.limit):
+        elapsed = time.perf_counter() - t_start
+        expected = (
+            float(np.mean(durations)) if durations else 0.0
+        )  # an object takes about as long as the last
+        if (elapsed + expected) / 60 > args.budget_min or (args.limit and made >= args.limit):
             break
         info = make_object(entry, assets_root, args)
+        durations.append(time.perf_counter() - t_start - elapsed)
         made += 1
         print(
             f"{entry['name']}: {info['novel_pairs']} pairs, "
