@@ -1,13 +1,13 @@
 """Train the repair prior (go_core.compact.prior) on the repair corpus: coarse novel-view render -> truth.
 
-Input per pair: the coarse render on white + its alpha (+ with ``--reference`` the nearest training view by
-viewing direction, raw). Target: the true render on white and the true alpha. Loss: L1(rgb) +
-``--lpips`` · LPIPS(rgb) (the project's LPIPS, ``--lpips-net`` vgg by default) + ``--alpha-weight`` ·
-L1(alpha). Augmentation: random crops, horizontal flips and RGB channel permutations (applied to input,
-reference and target alike). Deterministic for a seed on CPU; resumable (``<out>/checkpoint.safetensors``).
-Needs torch, numpy and this repository on PYTHONPATH (no other package); LPIPS weights from
-``--lpips-weights`` or the go-pipeline cache. Runs on a GPU with ``--device cuda``; the weights written are
-the same kind of file either way. Command used for the committed figures (on 1 CPU thread)::
+Input per pair: the coarse render on white + its alpha + (``--reference``) the nearest training view by
+viewing direction, warped into the novel view through the coarse depth (default) or raw. Target: the true
+render on white and the true alpha. Loss: L1(rgb) + ``--lpips`` · LPIPS(rgb) (the project's LPIPS,
+``--lpips-net`` vgg by default) + ``--alpha-weight`` · L1(alpha). Augmentation: random crops, horizontal
+flips and RGB channel permutations (applied to input, reference and target alike). Deterministic for a seed
+on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch, numpy and this repository on PYTHONPATH
+(no other package); LPIPS weights from ``--lpips-weights`` or the go-pipeline cache. Runs on a GPU with
+``--device cuda``; the weights written are the same kind of file either way. Example (1 CPU thread)::
 
     /work/bin/cpujob python benchmarks/train_repair_prior.py --corpus /work/corpus --out /work/prior_run \\
         --steps 2000 --batch 4 --crop 128
@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 
 from go_core.compact.prior import PriorConfig, RepairPrior, prior_input, save_prior
+from go_core.compact.reference import nearest_view, reproject
 from go_core.seeding import numpy_rng, seeded_torch_init
 
 
@@ -38,30 +39,46 @@ def _on_white(rgba: np.ndarray) -> np.ndarray:
     return (rgba[..., :3].astype(np.float32) / 255.0) * a + (1.0 - a)
 
 
-def _nearest_training_view(novel_c2w: np.ndarray, train_c2w: np.ndarray) -> np.ndarray:
-    """Index of the training camera whose viewing direction is closest to each novel camera's."""
-    fn = -novel_c2w[:, :3, 2]
-    ft = -train_c2w[:, :3, 2]
-    return np.argmax(fn @ ft.T, axis=1)
+def _references(d, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """The reference input of every pair of one object: the nearest training view, raw or reprojected
+    through the coarse depth (go_core.compact.reference); [N, H, W, 3] on white and [N, H, W, 1]."""
+    near = nearest_view(d["novel_c2w"], d["train_c2w"])
+    train_rgb = _on_white(d["train_rgba"])
+    train_alpha = d["train_rgba"][..., 3].astype(np.float32) / 255.0
+    if mode == "nearest":
+        return train_rgb[near], train_alpha[near][..., None]
+    rgbs, alphas = [], []
+    for i, j in enumerate(near):
+        cov = d["novel_coarse_alpha"][i].astype(np.float32) / 255.0
+        args = (d["intrinsics"], d["novel_c2w"][i], d["train_c2w"][j], train_rgb[j], train_alpha[j])
+        rgb, a = reproject(d["novel_coarse_depth"][i], cov, *args)
+        rgbs.append(rgb)
+        alphas.append(a[..., None])
+    return np.stack(rgbs), np.stack(alphas)
 
 
-def load_split(corpus: Path, split: str) -> dict:
-    """Every pair of the objects of ``split`` as float32 arrays [N, H, W, C] in [0, 1] (inputs, reference,
-    targets) plus the object name of each pair."""
+def load_split(
+    corpus: Path, split: str, reference: str = "reprojected", families: list[str] | None = None
+) -> dict:
+    """Every pair of the objects of ``split`` (of ``families``, default all) as float32 arrays [N, H, W, C]
+    in [0, 1] (inputs, reference, targets) plus the object name of each pair."""
     names, inp, alpha, ref, ref_alpha, tgt, tgt_alpha = [], [], [], [], [], [], []
     for info_path in sorted((corpus / "objects").glob("*/object.json")):
         info = json.loads(info_path.read_text())
-        if info["split"] != split:
+        if info["split"] != split or (families and info["name"].split("/")[0] not in families):
             continue
         with np.load(info_path.parent / "pairs.npz") as d:
-            near = _nearest_training_view(d["novel_c2w"], d["train_c2w"])
+            r, ra = _references(d, reference) if reference != "none" else (None, None)
+            n = len(d["novel_rgba"])
             inp.append(d["novel_coarse_rgb"].astype(np.float32) / 255.0)
             alpha.append(d["novel_coarse_alpha"][..., None].astype(np.float32) / 255.0)
-            ref.append(_on_white(d["train_rgba"][near]))
-            ref_alpha.append(d["train_rgba"][near][..., 3:4].astype(np.float32) / 255.0)
+            ref.append(r if r is not None else np.ones((n, *d["novel_rgba"].shape[1:3], 3), np.float32))
+            ref_alpha.append(
+                ra if ra is not None else np.zeros((n, *d["novel_rgba"].shape[1:3], 1), np.float32)
+            )
             tgt.append(_on_white(d["novel_rgba"]))
             tgt_alpha.append(d["novel_rgba"][..., 3:4].astype(np.float32) / 255.0)
-            names += [info["name"]] * len(near)
+            names += [info["name"]] * n
     if not names:
         sys.exit(f"error: {corpus}: no finished object of split {split!r} (objects/*/object.json)")
     cat = np.concatenate
@@ -101,7 +118,7 @@ def draw_batch(data: dict, rng: np.random.Generator, batch: int, crop: int) -> d
 
 
 def model_input(b: dict[str, torch.Tensor], reference: bool) -> torch.Tensor:
-    return prior_input(b["inp"], b["alpha"], *((b["ref"], b["ref_alpha"]) if reference else ()))
+    return prior_input(b["inp"], b["alpha"], *((b["ref"], b["ref_alpha"]) if reference != "none" else ()))
 
 
 def loss_terms(model, lpips, b: dict[str, torch.Tensor], args) -> dict[str, torch.Tensor]:
@@ -193,11 +210,12 @@ def _load_checkpoint(path: Path, model, opt, device: str) -> tuple[int, dict, li
 def train(args) -> dict:
     device = args.device
     with seeded_torch_init(args.seed, "prior_init"):
-        model = RepairPrior(PriorConfig(width=args.width, levels=args.levels, reference=args.reference))
+        config = PriorConfig(width=args.width, levels=args.levels, reference=args.reference != "none")
+        model = RepairPrior(config)
     model = model.to(device)
     use_lpips = args.lpips > 0 or not args.no_lpips_eval
     lpips = load_lpips(args.lpips_net, args.lpips_weights, device) if use_lpips else None
-    train_data = load_split(args.corpus, "train")
+    train_data = load_split(args.corpus, "train", args.reference, args.families)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     rng = numpy_rng(args.seed, "prior_batches")
     args.out.mkdir(parents=True, exist_ok=True)
@@ -233,7 +251,7 @@ def train(args) -> dict:
         "resumed_from": start,
     }
     if (args.corpus / "objects").is_dir() and not args.no_val:
-        val = load_split(args.corpus, "val")
+        val = load_split(args.corpus, "val", args.reference, args.families)
         result["validation"] = evaluate(model, lpips, val, args, device)
     save_prior(
         args.out / "prior.safetensors",
@@ -255,7 +273,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--lr", type=float, default=2e-4)
     ap.add_argument("--width", type=int, default=32)
     ap.add_argument("--levels", type=int, default=3)
-    ap.add_argument("--reference", action="store_true", help="the nearest training view as a second input")
+    ap.add_argument(
+        "--reference",
+        default="reprojected",
+        choices=["none", "nearest", "reprojected"],
+        help="second input: none, the nearest training view raw, or warped through the coarse depth",
+    )
+    ap.add_argument("--families", nargs="*", default=None, help="asset families to use (default: all)")
     ap.add_argument("--lpips", type=float, default=0.2, help="weight of the LPIPS term (0: L1 only)")
     ap.add_argument("--lpips-net", default="vgg", choices=["vgg", "alex"])
     ap.add_argument("--lpips-weights", type=Path, default=None, help="LPIPS safetensors (default: the cache)")

@@ -110,6 +110,8 @@ def _args(trainer, corpus: Path, out: Path, steps: int):
             "5",
             "--checkpoint-every",
             "10",
+            "--reference",
+            "nearest",
         ]
     )
 
@@ -117,7 +119,7 @@ def _args(trainer, corpus: Path, out: Path, steps: int):
 def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
     trainer = benchmark_module("train_repair_prior")
     corpus = _tiny_corpus(tmp_path / "corpus")
-    data = trainer.load_split(corpus, "train")
+    data = trainer.load_split(corpus, "train", "nearest")
     batch = trainer.draw_batch(data, np.random.default_rng(5), 4, 32)
     args = _args(trainer, corpus, tmp_path / "run", 30)
 
@@ -125,7 +127,7 @@ def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
         with torch.no_grad():
             return float(trainer.loss_terms(model, None, batch, args)["total"])
 
-    before = fixed_loss(RepairPrior(PriorConfig(width=8, levels=2)))
+    before = fixed_loss(RepairPrior(PriorConfig(width=8, levels=2, reference=True)))
     result = trainer.train(args)
     after = fixed_loss(load_prior(tmp_path / "run" / "prior.safetensors"))
     assert after < 0.8 * before, (before, after)
@@ -138,3 +140,45 @@ def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
     resumed = trainer.train(_args(trainer, corpus, half, 30))
     assert resumed["resumed_from"] == 10
     assert (half / "prior.safetensors").read_bytes() == (tmp_path / "run" / "prior.safetensors").read_bytes()
+
+
+def _look_at_c2w(eye: np.ndarray) -> np.ndarray:
+    """OpenGL camera-to-world of a camera at ``eye`` looking at the origin, +Z up."""
+    f = -eye / np.linalg.norm(eye)
+    x = np.cross(f, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(x, f), -f, eye
+    return m
+
+
+def test_reprojection_through_a_plane_matches_the_other_camera():
+    """A textured plane x = 0 seen by two cameras: warping one view into the other through the exact depth
+    reproduces the other view (bilinear error only), and the same camera gives the image back."""
+    from go_core.compact.reference import nearest_view, reproject
+
+    size, f = 64, 80.0
+    k = np.array([f, f, size / 2, size / 2])
+    cams = [_look_at_c2w(np.array([3.0, 0.0, 0.0])), _look_at_c2w(np.array([3.0, 0.6, 0.3]))]
+
+    def view(c2w):
+        """Image and z-depth of the plane x = 0 textured with smooth stripes, seen by ``c2w``."""
+        v, u = np.mgrid[:size, :size] + 0.5
+        dirs_cam = np.stack([(u - k[2]) / f, -(v - k[3]) / f, -np.ones_like(u)], -1)  # OpenGL camera frame
+        dirs = dirs_cam @ c2w[:3, :3].T
+        t = -c2w[0, 3] / dirs[..., 0]
+        p = c2w[:3, 3] + t[..., None] * dirs
+        rgb = np.stack(
+            [0.5 + 0.4 * np.sin(3 * p[..., 1]), 0.5 + 0.4 * np.cos(2 * p[..., 2]), 0.3 + 0 * t], -1
+        )
+        return rgb, t  # t along a direction with camera z = -1: the z-depth
+
+    (rgb0, _), (rgb1, depth1) = view(cams[0]), view(cams[1])
+    ones = np.ones((size, size))
+    warped, valid = reproject(depth1, ones, k, cams[1], cams[0], rgb0, ones)
+    assert valid.mean() > 0.7
+    err = np.abs(warped - rgb1)[valid > 0]
+    assert err.max() < 0.02, err.max()
+    same, valid_same = reproject(view(cams[0])[1], ones, k, cams[0], cams[0], rgb0, ones)
+    np.testing.assert_allclose(same[valid_same > 0], rgb0[valid_same > 0], atol=1e-6)
+    assert nearest_view(np.stack(cams[1:]), np.stack(cams)).tolist() == [1]
