@@ -58,14 +58,20 @@ def _references(d, mode: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def load_split(
-    corpus: Path, split: str, reference: str = "reprojected", families: list[str] | None = None
+    corpus: Path,
+    split: str,
+    reference: str = "reprojected",
+    families: list[str] | None = None,
+    only: list[str] | None = None,
 ) -> dict:
-    """Every pair of the objects of ``split`` (of ``families``, default all) as float32 arrays [N, H, W, C]
-    in [0, 1] (inputs, reference, targets) plus the object name of each pair."""
+    """Every pair of the finished objects of ``split`` (of ``families``, default all; of ``only`` when given)
+    as float32 arrays [N, H, W, C] in [0, 1] (inputs, reference, targets) and the object of each pair."""
     names, inp, alpha, ref, ref_alpha, tgt, tgt_alpha = [], [], [], [], [], [], []
     for info_path in sorted((corpus / "objects").glob("*/object.json")):
         info = json.loads(info_path.read_text())
         if info["split"] != split or (families and info["name"].split("/")[0] not in families):
+            continue
+        if only is not None and info["name"] not in only:
             continue
         with np.load(info_path.parent / "pairs.npz") as d:
             r, ra = _references(d, reference) if reference != "none" else (None, None)
@@ -177,7 +183,9 @@ def load_lpips(net: str, weights: Path | None, device: str):
     return model.to(device)
 
 
-def _save_checkpoint(path: Path, model, opt, step: int, rng: np.random.Generator, log: list) -> None:
+def _save_checkpoint(path: Path, model, opt, meta: dict) -> None:
+    """Weights and Adam moments as tensors; ``meta`` (step, numpy RNG state, loss log, CPU s, the training
+    objects) as JSON metadata."""
     from go_core.io.safetensors_file import write_safetensors
 
     tensors = {f"model.{k}": v.detach().cpu() for k, v in model.state_dict().items()}
@@ -186,11 +194,10 @@ def _save_checkpoint(path: Path, model, opt, step: int, rng: np.random.Generator
         if st:
             tensors[f"adam.{i}.m"] = st["exp_avg"].cpu()
             tensors[f"adam.{i}.v"] = st["exp_avg_sq"].cpu()
-    meta = {"step": step, "rng": rng.bit_generator.state, "log": log}
     write_safetensors(path, tensors, {"state": json.dumps(meta)})
 
 
-def _load_checkpoint(path: Path, model, opt, device: str) -> tuple[int, dict, list]:
+def _load_checkpoint(path: Path, model, opt, device: str) -> dict:
     from safetensors.torch import safe_open
 
     with safe_open(str(path), framework="pt") as f:
@@ -204,60 +211,84 @@ def _load_checkpoint(path: Path, model, opt, device: str) -> tuple[int, dict, li
                 "exp_avg": tensors[f"adam.{i}.m"].to(device),
                 "exp_avg_sq": tensors[f"adam.{i}.v"].to(device),
             }
-    return int(meta["step"]), meta["rng"], meta["log"]
+    return meta
 
 
-def train(args) -> dict:
-    device = args.device
-    with seeded_torch_init(args.seed, "prior_init"):
-        config = PriorConfig(width=args.width, levels=args.levels, reference=args.reference != "none")
-        model = RepairPrior(config)
-    model = model.to(device)
-    use_lpips = args.lpips > 0 or not args.no_lpips_eval
-    lpips = load_lpips(args.lpips_net, args.lpips_weights, device) if use_lpips else None
-    train_data = load_split(args.corpus, "train", args.reference, args.families)
-    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
-    rng = numpy_rng(args.seed, "prior_batches")
-    args.out.mkdir(parents=True, exist_ok=True)
+def _resume(args, model, opt, rng: np.random.Generator) -> dict:
+    """The run's state: fresh, or from ``<out>/checkpoint.safetensors`` (weights, Adam and RNG restored in
+    place; the objects the run started with, as the corpus may have grown since)."""
     ckpt = args.out / "checkpoint.safetensors"
-    start, log = 0, []
-    if ckpt.exists():
-        start, state, log = _load_checkpoint(ckpt, model, opt, device)
-        rng.bit_generator.state = state
-    t0, running = time.process_time(), []
-    for step in range(start + 1, args.steps + 1):
-        b = {k: v.to(device) for k, v in draw_batch(train_data, rng, args.batch, args.crop).items()}
+    if not ckpt.exists():
+        return {"step": 0, "log": [], "cpu_s": 0.0, "objects": None}
+    meta = _load_checkpoint(ckpt, model, opt, args.device)
+    rng.bit_generator.state = meta["rng"]
+    return {k: meta[k] for k in ("step", "log", "cpu_s", "objects")}
+
+
+def _run_steps(args, model, lpips, opt, rng, data: dict, state: dict) -> bool:
+    """Optimise from ``state["step"]`` to ``args.steps``; False when stopped early by ``--budget-min`` (at a
+    checkpoint). ``state`` is updated in place (step, loss log, CPU seconds)."""
+    t0, wall0, cpu0, running = time.process_time(), time.perf_counter(), state["cpu_s"], []
+    for step in range(state["step"] + 1, args.steps + 1):
+        b = {k: v.to(args.device) for k, v in draw_batch(data, rng, args.batch, args.crop).items()}
         terms = loss_terms(model, lpips, b, args)
         opt.zero_grad(set_to_none=True)
         terms["total"].backward()
         opt.step()
         running.append({k: float(v.detach()) for k, v in terms.items()})
+        state["step"], state["cpu_s"] = step, cpu0 + time.process_time() - t0
         if step % args.log_every == 0 or step == args.steps:
-            log.append(
+            state["log"].append(
                 {"step": step, **{k: round(float(np.mean([r[k] for r in running])), 5) for k in running[0]}}
             )
             running = []
-            print(json.dumps(log[-1]), flush=True)
+            print(json.dumps(state["log"][-1]), flush=True)
         if args.checkpoint_every and step % args.checkpoint_every == 0 and step < args.steps:
-            _save_checkpoint(ckpt, model, opt, step, rng, log)
-    cpu_s = time.process_time() - t0
+            _save_checkpoint(
+                args.out / "checkpoint.safetensors", model, opt, {**state, "rng": rng.bit_generator.state}
+            )
+            if args.budget_min and (time.perf_counter() - wall0) / 60 > args.budget_min:
+                print(
+                    f"stopped at step {step} of {args.steps} (--budget-min): run again to resume", flush=True
+                )
+                return False
+    return True
+
+
+def train(args) -> dict:
+    """Train (or resume) and, when the last step is reached, validate and write the weights and the log."""
+    if args.checkpoint_every % args.log_every:
+        sys.exit("error: --checkpoint-every must be a multiple of --log-every (the loss log resumes there)")
+    with seeded_torch_init(args.seed, "prior_init"):
+        model = RepairPrior(
+            PriorConfig(width=args.width, levels=args.levels, reference=args.reference != "none")
+        )
+    model = model.to(args.device)
+    use_lpips = args.lpips > 0 or not args.no_lpips_eval
+    lpips = load_lpips(args.lpips_net, args.lpips_weights, args.device) if use_lpips else None
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    rng = numpy_rng(args.seed, "prior_batches")
+    args.out.mkdir(parents=True, exist_ok=True)
+    state = _resume(args, model, opt, rng)
+    start = state["step"]
+    data = load_split(args.corpus, "train", args.reference, args.families, state["objects"])
+    state["objects"] = sorted(set(data["names"]))
+    if not _run_steps(args, model, lpips, opt, rng, data, state):
+        return {"stopped_at": state["step"], "cpu_s_total": round(state["cpu_s"], 1)}
     result = {
         "command": "python benchmarks/train_repair_prior.py " + " ".join(sys.argv[1:]),
         "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-        "loss_log": log,
-        "train_pairs": len(train_data["names"]),
-        "train_objects": len(set(train_data["names"])),
-        "cpu_s_this_call": round(cpu_s, 1),
+        "loss_log": state["log"],
+        "train_pairs": len(data["names"]),
+        "train_objects": state["objects"],
+        "cpu_s_total": round(state["cpu_s"], 1),
         "resumed_from": start,
     }
-    if (args.corpus / "objects").is_dir() and not args.no_val:
+    if not args.no_val:
         val = load_split(args.corpus, "val", args.reference, args.families)
-        result["validation"] = evaluate(model, lpips, val, args, device)
-    save_prior(
-        args.out / "prior.safetensors",
-        model.cpu(),
-        {"steps": args.steps, "train_objects": result["train_objects"]},
-    )
+        result["validation"] = evaluate(model, lpips, val, args, args.device)
+    extra = {"steps": args.steps, "train_objects": state["objects"]}
+    save_prior(args.out / "prior.safetensors", model.cpu(), extra)
     (args.out / "train_log.json").write_text(json.dumps(result, indent=1))
     return result
 
@@ -289,6 +320,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--log-every", type=int, default=20)
     ap.add_argument("--checkpoint-every", type=int, default=200)
     ap.add_argument("--no-val", action="store_true")
+    ap.add_argument(
+        "--budget-min", type=float, default=0.0, help="stop at a checkpoint after this (0: never)"
+    )
     return ap.parse_args(argv)
 
 
