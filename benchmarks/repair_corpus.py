@@ -308,10 +308,18 @@ def write_manifest(args, index: dict) -> dict:
 
 
 def _order(entries: list[dict], seed: int) -> list[dict]:
-    """Generation order: a seeded shuffle, so that any prefix mixes families and splits."""
+    """Generation order: a seeded shuffle within each split, the splits interleaved in proportion, so that
+    any prefix of the corpus mixes families and holds both splits at their ratio."""
     from go_core.seeding import derive_seed
 
-    return sorted(entries, key=lambda e: derive_seed(seed, "corpus_order", e["name"]))
+    placed = []
+    for split in ("train", "val"):
+        part = sorted(
+            (e for e in entries if e["split"] == split),
+            key=lambda e: derive_seed(seed, "corpus_order", e["name"]),
+        )
+        placed += [((i + 0.5) / len(part), split, e["name"], e) for i, e in enumerate(part)]
+    return [e for *_, e in sorted(placed, key=lambda t: t[:3])]
 
 
 def parse_args(argv=None) -> argparse.Namespace:
