@@ -137,6 +137,23 @@ def build_index(assets_root: Path, seed: int, val_fraction: float) -> dict:
     }
 
 
+def code_version() -> str:
+    """The repository commit the object was made with (``+dirty`` when the work tree has changes)."""
+    repo = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True)
+        dirty = subprocess.run(
+            ["git", "-C", str(repo), "status", "--porcelain"], capture_output=True, text=True
+        )
+    except OSError:
+        return "unknown"
+    return (
+        head.stdout.strip()[:12] + ("+dirty" if dirty.stdout.strip() else "")
+        if head.returncode == 0
+        else "unknown"
+    )
+
+
 def _children_cpu() -> float:
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
@@ -218,6 +235,7 @@ def make_object(entry: dict, assets_root: Path, args) -> dict:
         "split": entry["split"],
         "views": views.to_dict(),
         "samples": json.loads((folder / "render_job.json").read_text())["samples"],
+        "code": code_version(),
         "novel_pairs": int(len(arrays["novel_rgba"])),
         "train_views": int(len(arrays["train_rgba"])),
         "gaussians": coarse_info["gaussians"],
