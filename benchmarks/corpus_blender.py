@@ -30,6 +30,9 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the repository: go_core
+from go_core.corpus.views import camera_to_world  # noqa: E402  (numpy only)
+
 
 def import_meshes(paths, up):
     """Import every OBJ, bake transforms and join them into one mesh object."""
@@ -153,18 +156,6 @@ def make_camera(fov_deg):
     bpy.context.scene.collection.objects.link(o)
     bpy.context.scene.camera = o
     return o
-
-
-def camera_to_world(az_deg, el_deg, radius):
-    """OpenGL camera-to-world matrix of a camera at (azimuth, elevation, radius) looking at the origin."""
-    az, el = math.radians(az_deg), math.radians(el_deg)
-    eye = radius * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
-    f = -eye / np.linalg.norm(eye)
-    x = np.cross(f, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(x, f), -f, eye
-    return m
 
 
 def render_split(job, cam, split):

@@ -142,24 +142,15 @@ def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
     assert (half / "prior.safetensors").read_bytes() == (tmp_path / "run" / "prior.safetensors").read_bytes()
 
 
-def _look_at_c2w(eye: np.ndarray) -> np.ndarray:
-    """OpenGL camera-to-world of a camera at ``eye`` looking at the origin, +Z up."""
-    f = -eye / np.linalg.norm(eye)
-    x = np.cross(f, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(x, f), -f, eye
-    return m
-
-
 def test_reprojection_through_a_plane_matches_the_other_camera():
     """A textured plane x = 0 seen by two cameras: warping one view into the other through the exact depth
     reproduces the other view (bilinear error only), and the same camera gives the image back."""
     from go_core.compact.reference import nearest_view, reproject
+    from go_core.corpus.views import camera_to_world
 
     size, f = 64, 80.0
     k = np.array([f, f, size / 2, size / 2])
-    cams = [_look_at_c2w(np.array([3.0, 0.0, 0.0])), _look_at_c2w(np.array([3.0, 0.6, 0.3]))]
+    cams = [camera_to_world(0.0, 0.0, 3.0), camera_to_world(11.0, 5.5, 3.07)]
 
     def view(c2w):
         """Image and z-depth of the plane x = 0 textured with smooth stripes, seen by ``c2w``."""

@@ -62,7 +62,7 @@ def reproject(
     ok = (coverage > 0.5) & (z > 0) & (zt > 1e-6)
     ut = fx * other[..., 0] / np.where(ok, zt, 1.0) + cx
     vt = fy * other[..., 1] / np.where(ok, zt, 1.0) + cy
-    ok &= (ut >= 0) & (ut < w) & (vt >= 0) & (vt < h)
+    ok &= (ut >= 0.5) & (ut <= w - 0.5) & (vt >= 0.5) & (vt <= h - 0.5)  # all 4 bilinear neighbours inside
     rgb = np.where(ok[..., None], _bilinear(train_rgb, ut, vt), 1.0)
     seen = _bilinear(train_alpha[..., None], ut, vt)[..., 0] > 0.5
     return rgb.astype(np.float32), (ok & seen).astype(np.float32)

@@ -10,6 +10,7 @@ plus a soft sun of random strength and direction (off in a quarter of the object
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -73,3 +74,15 @@ def draw_views(seed: int, name: str, n_novel: int, n_train: int = 4) -> ObjectVi
         sun_elevation_deg=round(float(rng.uniform(20.0, 70.0)), 4),
         sun_azimuth_deg=round(float(rng.uniform(0.0, 360.0)), 4),
     )
+
+
+def camera_to_world(az_deg: float, el_deg: float, radius: float) -> np.ndarray:
+    """OpenGL camera-to-world matrix of a camera at (azimuth, elevation, radius) looking at the origin."""
+    az, el = math.radians(az_deg), math.radians(el_deg)
+    eye = radius * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    f = -eye / np.linalg.norm(eye)
+    x = np.cross(f, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(x, f), -f, eye
+    return m
