@@ -169,7 +169,7 @@ def test_reprojection_through_a_plane_matches_the_other_camera():
     warped, valid = reproject(depth1, ones, k, cams[1], cams[0], rgb0, ones)
     assert valid.mean() > 0.7
     err = np.abs(warped - rgb1)[valid > 0]
-    assert err.max() < 0.02, err.max()
+    assert err.max() < 0.005, err.max()  # bilinear interpolation error only (measured 6e-4)
     same, valid_same = reproject(view(cams[0])[1], ones, k, cams[0], cams[0], rgb0, ones)
     np.testing.assert_allclose(same[valid_same > 0], rgb0[valid_same > 0], atol=1e-6)
     assert nearest_view(np.stack(cams[1:]), np.stack(cams)).tolist() == [1]
