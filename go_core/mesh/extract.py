@@ -21,14 +21,14 @@ def render_maps(gaussians, cameras: list[Camera], backend: str, batch: int):
     """Yield (camera, depth [H,W], alpha [H,W], straight rgb [H,W,3]) float32 numpy per camera."""
     import torch
 
-    from go_core.camera import stack_cameras
     from go_core.render import render_gaussians
 
     g = gaussians.to(dtype=torch.float32)
     with torch.no_grad():
         for start in range(0, len(cameras), batch):
             chunk = cameras[start : start + batch]
-            viewmats, Ks = stack_cameras(chunk, device=g.means.device)
+            viewmats = torch.stack([c.viewmat_tensor(device=g.means.device) for c in chunk])
+            Ks = torch.stack([c.K_tensor(device=g.means.device) for c in chunk])
             out = render_gaussians(g, viewmats, Ks, chunk[0].width, chunk[0].height, backend=backend)
             alpha = out.alpha[..., 0].cpu().numpy()
             depth = out.depth[..., 0].cpu().numpy()
