@@ -37,9 +37,10 @@ def add_parser(subparsers) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from go_pipeline.reporting.batch import find_scenes, import_ray, run_batch, write_results
+    from go_core.extras import require_extra
+    from go_pipeline.reporting.batch import find_scenes, run_batch, write_results
 
-    import_ray()  # without the [ray] extra: one line saying how to install it, before anything else
+    require_extra("ray", "go-pipeline batch (scenes on Ray)")  # one line, before anything else
     scenes = find_scenes(args.root)
     print(f"{len(scenes)} scenes under {args.root}: " + ", ".join(s.name for s in scenes))
     options = {

@@ -49,11 +49,19 @@ def find_scenes(root: str | Path) -> list[Path]:
 RAY_AUTH_ENV = "RAY_AUTH_MODE"
 
 
-def import_ray():
-    """The ``ray`` module, or one GoError saying how to install it (Ray is the ``[ray]`` extra)."""
+def import_ray(local: bool = True):
+    """The ``ray`` module, or one GoError saying how to install it (Ray is the ``[ray]`` extra).
+
+    ``local``: the batch starts its own Ray. Ray >= 2.5x turns token authentication on for a new local
+    cluster and warns about it on every start unless ``RAY_AUTH_MODE`` is set; Ray reads it when imported,
+    so it is set (to token: the same protection, without the warning) before the first import."""
+    import sys
+
     from go_core.extras import require_extra
 
     require_extra("ray", "go-pipeline batch (scenes on Ray)")
+    if local and "ray" not in sys.modules:
+        os.environ.setdefault(RAY_AUTH_ENV, "token")
     import ray
 
     return ray
@@ -135,17 +143,13 @@ def run_batch(
     scene's work dir, which every node must see); each row says its ``attempts``."""
     import uuid
 
-    ray = import_ray()
+    ray = import_ray(local=not ray_address)
 
     scenes = scenes if scenes is not None else find_scenes(root)
     options = dict(options or {})
     options.setdefault("batch_id", uuid.uuid4().hex[:12])
     t0 = time.perf_counter()
     started_here = not ray.is_initialized()
-    if started_here and not ray_address:
-        # Ray >= 2.5x turns token authentication on for a new local cluster and warns about it unless the
-        # mode is set: set it (token: the same protection, without the warning on every batch)
-        os.environ.setdefault(RAY_AUTH_ENV, "token")
     if started_here:
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
         if ray_address:
