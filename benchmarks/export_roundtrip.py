@@ -2,7 +2,7 @@
 how far each attribute moves, and what the read-back model renders like next to the original.
 
     cd js && npm ci && cd ..
-    /work/bin/cpujob python benchmarks/export_roundtrip.py go-example/basket \
+    python benchmarks/export_roundtrip.py go-example/basket \
         --json benchmarks/results/export_roundtrip.json
 
 For the scene's final model (the export step's ``point_cloud.ply``), writes ``.spz`` and SuperSplat

@@ -7,8 +7,8 @@ measures again without training: the runs are resumable one scene at a time); th
 the mesh step's defaults (go_core.mesh.extract) and timed. The repair chain is not run here (too costly on
 the shared 2-core machine): the coarse mesh stands in for the final one, and the JSON says so.
 
-    /work/bin/cpujob python benchmarks/geometry_dev.py --scenes milk --stage train
-    /work/bin/cpujob --whole python benchmarks/geometry_dev.py --stage measure \\
+    python benchmarks/geometry_dev.py --scenes milk --stage train
+    python benchmarks/geometry_dev.py --stage measure \\
         --out benchmarks/results/geometry_dev.json
 """
 

@@ -1,6 +1,6 @@
 """Install time and venv size of `pip install SRC` in a fresh venv (torch first, as the README says).
 
-    /work/bin/cpujob python benchmarks/install_size.py SRC --label after   # -> results/install_size.json
+    python benchmarks/install_size.py SRC --label after   # -> results/install_size.json
 
 SRC is a source tree (the package as a user clones it). The timed part is `pip install SRC` alone, with
 torch already in the venv and pip's cache off (every wheel fetched as a new user's would be). Writes (or

@@ -1,7 +1,7 @@
 """A folder of photos, end to end (issue 32), on a photo set with a reference/ folder (evaluation only).
 
 ``--part product``: copies the set's ``images/`` ALONE into an empty folder and times ``go-pipeline run`` on
-it from an empty work dir (run it under ``/work/bin/cpujob --whole`` for the 2-core figure), then scores
+it from an empty work dir (run it under ``--whole`` for the 2-core figure), then scores
 what the product made against ``reference/``: photos registered, rotation error of every posed photo after a
 similarity alignment of the camera centres (median, max), the IoU of its masks, the chosen training views,
 the test metrics, the time of every step.
@@ -10,8 +10,8 @@ the test metrics, the time of every step.
 poses, as a NeRF-synthetic folder at the same photo size, run with the same settings: the PSNR gap between
 the two is the cost of the product's own masks and poses.
 
-    /work/bin/cpujob --whole python benchmarks/photos.py --part product
-    /work/bin/cpujob python benchmarks/photos.py --part reference
+    python benchmarks/photos.py --part product
+    python benchmarks/photos.py --part reference
 """
 
 from __future__ import annotations
@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-DATA = Path("/work/shared/data/photos/ethiopian_head")
+DATA = (
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "photos" / "ethiopian_head"
+)  # ../shared beside the checkout
 OUT = Path(__file__).resolve().parent / "results" / "photos_ethiopian_head.json"
 
 

@@ -6,7 +6,7 @@ in one go (``objects/<name>/object.json`` is written last) and a call stops star
 ``--budget-min``, so it runs in chunks under the CPU lock. The exact command (repeat until it prints
 "corpus complete"; each call renders with one Blender thread and trains with one torch thread)::
 
-    /work/bin/cpujob python benchmarks/repair_corpus.py --out /work/corpus --budget-min 12 \\
+    python benchmarks/repair_corpus.py --out ~/go-corpus --budget-min 12 \\
         --manifest benchmarks/results/repair_corpus.json
 
 Needs a Python with the ``bpy`` wheel for rendering (``--bpy-python``, default ``~/.venvs/bpy/bin/python``;

@@ -1,7 +1,7 @@
 """Size and inference time of the repair prior (go_core.compact.prior) at 256x256: the issue-34 limits are
 weights <= 30 MB and <= 0.2 s per view on 2 cores. Random weights (the time does not depend on them)::
 
-    /work/bin/cpujob --whole python benchmarks/repair_prior_speed.py \\
+    python benchmarks/repair_prior_speed.py \\
         --out benchmarks/results/repair_prior_speed.json
 
 Reports per configuration: parameters, float32 MB, median seconds per 256x256 view over ``--repeat`` runs

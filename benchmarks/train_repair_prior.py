@@ -9,7 +9,7 @@ on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch, numpy and thi
 (no other package); LPIPS weights from ``--lpips-weights`` or the go-pipeline cache. Runs on a GPU with
 ``--device cuda``; the weights written are the same kind of file either way. Example (1 CPU thread)::
 
-    /work/bin/cpujob python benchmarks/train_repair_prior.py --corpus /work/corpus --out /work/prior_run \\
+    python benchmarks/train_repair_prior.py --corpus ~/go-corpus --out prior_run \\
         --steps 2000 --batch 4 --crop 128
 
 Writes ``<out>/prior.safetensors`` (weights + config + training facts in the metadata) and

@@ -4,7 +4,7 @@ depth maps exact or with Gaussian noise of 0.5 and 1 voxel (the rendered depth o
 fused on a 64^3 grid with the truncation 1.5 / 3 / 5 / 8 voxels; Chamfer-L1 and F@1% against the analytic
 surface (go_core.metrics.geometry, 100 000 samples, seed 0).
 
-    /work/bin/cpujob python benchmarks/tsdf_truncation.py --out benchmarks/results/tsdf_truncation.json
+    python benchmarks/tsdf_truncation.py --out benchmarks/results/tsdf_truncation.json
 """
 
 from __future__ import annotations
