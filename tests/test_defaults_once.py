@@ -50,6 +50,7 @@ def _places(name: str, value) -> list[str]:
 
 # keyword defaults of library functions that restate a param's default (to remove: the caller passes it)
 RESTATED = {
+    "alpha_threshold": {"go_core/mesh/tsdf.py"},
     "views": {"go_core/scene/loader.py", "go_core/scene/validate.py"},
     "poses": {"go_core/scene/artifact.py"},
     "all_but_one": {"go_core/coarse/hull.py"},
@@ -75,7 +76,11 @@ RESTATED = {
 }
 
 # same name and value, another meaning: a docstring example, the synthetic test scenes' SH degree
-UNRELATED = {"init": {"go_core/config.py"}, "sh_degree": {"go_core/render/synthetic.py"}}
+UNRELATED = {
+    "init": {"go_core/config.py"},
+    "sh_degree": {"go_core/render/synthetic.py"},
+    "resolution": {"pipeline.yaml"},  # the example profile's mesh.resolution 128, another step's setting
+}
 
 
 def _home(cls: type, name: str) -> str:
