@@ -35,7 +35,7 @@ def test_scene_manifest_schema_accepts_the_scene_artifact():
     del bad["test"][0]["has_mask"]
     problems = schema_problems("scene_manifest", bad)
     assert len(problems) == 3
-    assert problems[0] == "at format: 'blender' is not one of ['nerf', 'colmap']"
+    assert problems[0] == "at format: 'blender' is not one of ['nerf', 'colmap', 'photos']"
     assert any(p.startswith("at test/0: 'has_mask' is a required property") for p in problems)
     assert any(p.startswith("at train/0/K: ") for p in problems)
 

@@ -134,7 +134,8 @@ def test_scene_step_writes_the_artifact(shared_data, tmp_path, schema):
         {"folder": shared_data / "dev" / "milk"},
         step_params(step.__name__, {"views": 2, "max_size": 128}),
     )
-    assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["scene.json", "views.npz"]
+    # dev/milk carries its ground-truth mesh: the scene step copies it for eval's geometry metrics
+    assert sorted(p.name for p in ctx.out_dir.iterdir()) == ["mesh_world.npz", "scene.json", "views.npz"]
     manifest = json.loads((ctx.out_dir / "scene.json").read_text())
     schema.validate(manifest)
     assert (manifest["views_requested"], manifest["max_size"]) == (2, 128)

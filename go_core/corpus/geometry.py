@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from go_core.errors import GoError
+from go_core.seeding import numpy_rng
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ def _read_one(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def surface_samples(mesh: Mesh, count: int, seed: int) -> np.ndarray:
     """``count`` points drawn uniformly (by area) on the triangles; the vertices when there are no faces."""
-    rng = np.random.default_rng(seed)
+    rng = numpy_rng(seed, "surface_samples")
     if len(mesh.faces) == 0:
         return mesh.vertices[rng.choice(len(mesh.vertices), size=count)]
     a, b, c = (mesh.vertices[mesh.faces[:, k]] for k in range(3))
