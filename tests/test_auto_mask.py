@@ -194,27 +194,14 @@ def test_a_box_carried_through_poses_covers_the_object_in_every_view():
         assert area < 4.0 * (x1 - x0) * (y1 - y0), cam.name  # a cube around a ball, seen obliquely
 
 
-def _ball_masks(cams, centre, radius):
-    out = []
-    for cam in cams:
-        rows, cols = np.mgrid[: cam.height, : cam.width]
-        pix = np.stack([cols + 0.5, rows + 0.5, np.ones_like(cols)], -1).reshape(-1, 3).astype(float)
-        rays = pix @ np.linalg.inv(cam.K).T @ cam.world_to_cam[:3, :3]  # world directions
-        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-        to_c = centre - cam.center
-        dist = np.linalg.norm(to_c - (rays @ to_c)[:, None] * rays, axis=1)
-        out.append((dist < radius).reshape(cam.height, cam.width))
-    return out
-
-
 def test_hull_vote_removes_what_one_view_wrongly_takes_in():
     """Ten views of a ball; one view's mask also takes in a slab under the ball (as u2netp takes in a
     turntable disc): the vote carves it away there and leaves every mask of the ball as it was."""
     from go_core.scene.auto_mask import hull_vote_masks
-    from tests._scene_helpers import ring_cameras
+    from tests._scene_helpers import ball_masks, ring_cameras
 
     cams = ring_cameras(10, 160, 120, f=150.0, elevation=0.4)
-    truth = _ball_masks(cams, np.array([0.0, 0.0, 0.1]), 0.45)
+    truth = ball_masks(cams, np.array([0.0, 0.0, 0.1]), 0.45)
     masks = [t.astype(np.float32) for t in truth]
     rows = np.nonzero(truth[3].any(1))[0]
     slab = np.zeros_like(truth[3])
