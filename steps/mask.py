@@ -18,13 +18,13 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.errors import PipelineError, SceneError
+from go_core.scene.auto_mask import VOTE_MIN_VIEWS
 from go_core.scene.masking import OnnxSegmenter, grabcut_mask, mask_stats, validate_mask
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import MaskParams
 
 METHODS = ("auto", "provided", "grabcut", "onnx", "u2netp")
-VOTE_MIN_VIEWS = 8  # auto_vote needs this many posed views (training + test) to outvote a wrong mask
 
 
 def _choose(method: str, have_all: bool, onnx_model: str, log) -> str:

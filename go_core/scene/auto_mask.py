@@ -23,6 +23,7 @@ from go_core.scene.object_hint import ObjectBox
 
 HINT_WIDEN = 0.1  # a carried box grows by this fraction of its size on each side
 HULL_VOTE = 0.95  # hull_vote_masks: a voxel stays when this share of the views that see it mask it
+VOTE_MIN_VIEWS = 8  # the vote needs this many posed views to outvote a wrong mask
 
 
 @dataclass(frozen=True)
