@@ -6,8 +6,9 @@ weights cache and the post-processing of go_core.scene.auto_mask, with the ``aut
 (a salient-object ONNX model from ``onnx_model``, a local path), or ``auto``: provided when every training
 view has a mask, else onnx when ``onnx_model`` is set, else u2netp when it is in the weights cache, else
 grabcut (with a warning that says how to fetch u2netp). ``object_box`` (``x0,y0,x1,y1@PHOTO``, any photo
-of the scene) tells u2netp where the object is (go_core.scene.object_hint). The method used per view is
-recorded (``ctx.record(method=..., views=[...])``).
+of the scene) tells u2netp where the object is (go_core.scene.object_hint). With ``auto_vote`` and at
+least 8 posed views, u2netp masks every view and keeps what ``auto_vote`` of the views agree on in 3D
+(docs/photo_masks.md). The method used per view is recorded (``ctx.record(method=..., views=[...])``).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
 from go_core.errors import PipelineError, SceneError
+from go_core.scene.auto_mask import VOTE_MIN_VIEWS
 from go_core.scene.masking import OnnxSegmenter, grabcut_mask, mask_stats, validate_mask
 
 if TYPE_CHECKING:
@@ -53,28 +55,39 @@ def _masker(method: str, params: MaskParams, scene):
         segmenter = OnnxSegmenter(Path(params.onnx_model), params.onnx_normalization)
         return lambda i, v: segmenter(v.image)
     if method == "u2netp":
-        from go_core.scene.auto_mask import AutoMaskSettings, auto_mask, load_segmenter
-        from go_core.scene.object_hint import parse_object_box
-
-        segmenter = load_segmenter()
-        settings = AutoMaskSettings(params.auto_threshold, params.auto_crop_margin, refine=params.auto_refine)
-        hint = parse_object_box(params.object_box) if params.object_box else None
-        boxes = _hint_boxes(scene, hint)
-        return lambda i, v: auto_mask(v.image, segmenter, settings, boxes[i])
+        return _auto_masker(params, scene)
     return None
 
 
-def _hint_boxes(scene, hint) -> list:
-    """The object box of every training view (None without a hint), from the box drawn on one photo."""
+def _auto_masker(params: MaskParams, scene):
+    """u2netp masks; with ``auto_vote`` and at least VOTE_MIN_VIEWS posed views (training and test), the
+    masks of all views made consistent through the poses (go_core.scene.auto_mask.hull_vote_masks)."""
+    from go_core.scene.auto_mask import AutoMaskSettings, auto_mask, hull_vote_masks, load_segmenter
+    from go_core.scene.object_hint import parse_object_box
+
+    segmenter = load_segmenter()
+    settings = AutoMaskSettings(params.auto_threshold, params.auto_crop_margin, refine=params.auto_refine)
+    hint = parse_object_box(params.object_box) if params.object_box else None
+    views = scene.train + scene.test
+    boxes = _hint_boxes(scene, hint, views)
+    if params.auto_vote <= 0 or len(views) < VOTE_MIN_VIEWS:
+        return lambda i, v: auto_mask(v.image, segmenter, settings, boxes[i])
+    masks = [auto_mask(v.image, segmenter, settings, b) for v, b in zip(views, boxes, strict=True)]
+    voted = hull_vote_masks(masks, [v.camera for v in views], params.auto_vote)
+    return lambda i, v: voted[i]
+
+
+def _hint_boxes(scene, hint, views: list) -> list:
+    """The object box of each of ``views`` (None without a hint), from the box drawn on one photo."""
     if hint is None:
-        return [None] * len(scene.train)
+        return [None] * len(views)
     from go_core.scene.auto_mask import carry_box
 
-    views = scene.train + scene.test
-    found = [i for i, v in enumerate(views) if hint.matches(v.name) or hint.matches(str(v.source or ""))]
+    every = scene.train + scene.test
+    found = [v for v in every if hint.matches(v.name) or hint.matches(str(v.source or ""))]
     if not found:
         raise SceneError(f"mask.object_box names photo {hint.photo!r}, which is not a view of this scene")
-    return carry_box(hint, views[found[0]].image.shape[:2], [v.image.shape[:2] for v in scene.train])
+    return carry_box(hint, found[0].image.shape[:2], [v.image.shape[:2] for v in views])
 
 
 def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
@@ -103,7 +116,9 @@ def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
         bar.advance()
     bar.close()
     art.write_masks(ctx.out_dir, masks)
+    voted = method == "u2netp" and params.auto_vote > 0 and len(scene.train + scene.test) >= VOTE_MIN_VIEWS
     summary = {"method": method, "onnx_model": params.onnx_model if method == "onnx" else None,
-               "object_box": params.object_box or None, "views": info}  # fmt: skip
+               "object_box": params.object_box or None,
+               "vote_views": len(scene.train + scene.test) if voted else 0, "views": info}  # fmt: skip
     art.write_json(ctx.out_dir, art.MASK_INFO, summary)
     ctx.record(method=method, views=len(masks), foreground=[i["foreground_fraction"] for i in info])

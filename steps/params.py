@@ -81,6 +81,9 @@ class MaskParams:
     )
     auto_refine: Literal["none", "grabcut"] = setting("none", doc="u2netp: GrabCut seeded by the saliency")
     object_box: str = setting("", doc="x0,y0,x1,y1@PHOTO: a box around the object on one photo (u2netp)")
+    auto_vote: float = setting(
+        0.95, ge=0, le=1, doc="u2netp, >= 8 posed views: keep what this share of views masks in 3D (0: off)"
+    )
     onnx_model: str = setting("", doc="local path of an ISNet/U2-Net ONNX export")
     onnx_normalization: Literal["imagenet", "isnet"] = setting(
         "imagenet",

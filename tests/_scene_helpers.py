@@ -107,3 +107,17 @@ def write_colmap_scene(root: Path, n: int = 6, w: int = 32, h: int = 24, text: b
         write_png(root / "masks" / name, img[..., 3])
     write_colmap_model(root / "sparse" / "0", cams, names, text=text)
     return root
+
+
+def ball_masks(cams: list[Camera], centre: np.ndarray, radius: float) -> list[np.ndarray]:
+    """Bool [H,W] silhouettes of a ball (exact: a pixel ray passes within ``radius`` of ``centre``)."""
+    out = []
+    for cam in cams:
+        rows, cols = np.mgrid[: cam.height, : cam.width]
+        pix = np.stack([cols + 0.5, rows + 0.5, np.ones_like(cols)], -1).reshape(-1, 3).astype(float)
+        rays = pix @ np.linalg.inv(cam.K).T @ cam.world_to_cam[:3, :3]  # world directions
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        to_c = centre - cam.center
+        dist = np.linalg.norm(to_c - (rays @ to_c)[:, None] * rays, axis=1)
+        out.append((dist < radius).reshape(cam.height, cam.width))
+    return out

@@ -192,3 +192,24 @@ def test_a_box_carried_through_poses_covers_the_object_in_every_view():
         assert box[0] <= x0 and box[1] <= y0 and box[2] >= x1 and box[3] >= y1, cam.name
         area = (box[2] - box[0]) * (box[3] - box[1])
         assert area < 4.0 * (x1 - x0) * (y1 - y0), cam.name  # a cube around a ball, seen obliquely
+
+
+def test_hull_vote_removes_what_one_view_wrongly_takes_in():
+    """Ten views of a ball; one view's mask also takes in a slab under the ball (as u2netp takes in a
+    turntable disc): the vote carves it away there and leaves every mask of the ball as it was."""
+    from go_core.scene.auto_mask import hull_vote_masks
+    from tests._scene_helpers import ball_masks, ring_cameras
+
+    cams = ring_cameras(10, 160, 120, f=150.0, elevation=0.4)
+    truth = ball_masks(cams, np.array([0.0, 0.0, 0.1]), 0.45)
+    masks = [t.astype(np.float32) for t in truth]
+    rows = np.nonzero(truth[3].any(1))[0]
+    slab = np.zeros_like(truth[3])
+    slab[rows.max() - 4 : rows.max() + 20, 10:150] = True  # joined to the ball's bottom
+    masks[3][slab] = 1.0
+    voted = hull_vote_masks(masks, cams, vote=0.9, resolution=96)
+    for t, v in zip(truth, voted, strict=True):
+        v = v > 0.5
+        assert (t & v).sum() / (t | v).sum() > 0.9  # voxel edges: the ball is ~40 px across
+    extra = slab & ~truth[3]
+    assert masks[3][extra].mean() == 1.0 and (voted[3] > 0.5)[extra].mean() < 0.06  # a voxel-wide rim stays

@@ -14,7 +14,7 @@ from go_core.scene.artifact import save_scene_artifact
 from go_core.scene.salient_weights import u2netp_path
 from go_core.scene.types import Scene, View
 from go_pipeline.pipeline import step_params
-from tests._scene_helpers import ring_cameras
+from tests._scene_helpers import ball_masks, ring_cameras
 from tests._tiny_repair import FakeCtx
 
 pytestmark = pytest.mark.usefixtures("single_thread")
@@ -84,3 +84,32 @@ def test_auto_uses_u2netp_and_the_box_picks_the_object(tmp_path):
         assert (m[blue] > 0.5).mean() > 0.9 and (m[red] > 0.5).mean() < 0.1
     with pytest.raises(SceneError, match="names photo 'nope.jpg', which is not a view"):
         _run(tmp_path / "bad", method="u2netp", object_box="4,26,33,55@nope.jpg")
+
+
+def test_with_enough_posed_views_the_masks_are_voted_through_the_poses(tmp_path):
+    """Ten posed photos of a red ball; in one, a red slab joins it (u2netp takes it in, as it takes in a
+    turntable disc): the vote over all ten views carves the slab away."""
+    if not u2netp_path().is_file():
+        pytest.skip("u2netp is not in the weights cache (`go-pipeline weights fetch`)")
+    from go_pipeline.steps import mask
+
+    cams = ring_cameras(10, 160, 120, f=150.0, elevation=0.4)
+    truth = ball_masks(cams, np.array([0.0, 0.0, 0.1]), 0.45)
+    rows = np.nonzero(truth[1].any(1))[0]
+    slab = np.zeros_like(truth[1])
+    slab[rows.max() - 4 : rows.max() + 20, 20:140] = True
+    views = []
+    for i, (cam, t) in enumerate(zip(cams, truth, strict=True)):
+        img = np.full((120, 160, 3), 0.6, np.float32)
+        img[t | (slab if i == 1 else False)] = (0.85, 0.15, 0.1)
+        views.append(View(cam, img, None, source=f"{cam.name}.jpg"))
+    out = tmp_path / "scene"
+    save_scene_artifact(Scene(tmp_path / "raw", "nerf", views[:4], views[4:]), out)
+    ctx = FakeCtx(tmp_path, "mask")
+    mask.run(ctx, {"scene": out}, step_params(mask.__name__, {"method": "u2netp"}))
+    info = json.loads((ctx.out_dir / "mask.json").read_text())
+    masks = np.load(ctx.out_dir / "masks.npz")
+    voted = masks["train_001"] > 0.5
+    assert info["vote_views"] == 10
+    assert (voted & truth[1]).sum() / (voted | truth[1]).sum() > 0.85
+    assert voted[slab & ~truth[1]].mean() < 0.1

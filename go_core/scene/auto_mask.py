@@ -22,6 +22,8 @@ from go_core.scene.masking import OnnxSegmenter
 from go_core.scene.object_hint import ObjectBox
 
 HINT_WIDEN = 0.1  # a carried box grows by this fraction of its size on each side
+HULL_VOTE = 0.95  # hull_vote_masks: a voxel stays when this share of the views that see it mask it
+VOTE_MIN_VIEWS = 8  # the vote needs this many posed views to outvote a wrong mask
 
 
 @dataclass(frozen=True)
@@ -163,3 +165,52 @@ def carry_box_with_poses(box: Box, ref, cameras: list, widen: float = HINT_WIDEN
             continue
         out.append(widen_box((uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()), widen))
     return out
+
+
+def hull_vote_masks(
+    masks: list[np.ndarray],
+    cameras: list,
+    vote: float = HULL_VOTE,
+    resolution: int = 96,
+    threshold: float = 0.5,
+) -> list[np.ndarray]:
+    """Masks made consistent through the poses: each mask ∩ the projection of the voxels that at least
+    ``vote`` of the views seeing them put inside their masks (a visual hull that tolerates a few wrong
+    masks). What one view's salient-object map wrongly takes in (a turntable disc, a stand) is carved away
+    by the views that leave it out. Returns float32 {0, 1} masks, largest component, holes filled."""
+    import math
+
+    from go_core.coarse.hull import hull_bounds, inside_masks
+
+    need = max(1, math.ceil(vote * len(cameras)))
+    lo, hi = hull_bounds(cameras, masks, min_views=need, threshold=threshold)
+    axes = [np.linspace(lo[k], hi[k], resolution) for k in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    inside = inside_masks(grid, cameras, masks, threshold).sum(0)
+    seen = np.zeros(len(grid))
+    for cam in cameras:
+        uv, z = cam.project(grid)
+        seen += (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    kept = grid[(inside >= vote * seen) & (seen > 0)]
+    voxel = float(np.max((hi - lo) / (resolution - 1)))
+    out = []
+    for cam, mask in zip(cameras, masks, strict=True):
+        region = _splat(cam, kept, voxel)
+        out.append(fill_holes(largest_component((mask > threshold) & region)).astype(np.float32))
+    return out
+
+
+def _splat(cam, points: np.ndarray, voxel: float) -> np.ndarray:
+    """Bool [H,W]: the pixels ``points`` (voxel centres) cover, each grown to its voxel's footprint."""
+    import cv2
+
+    region = np.zeros((cam.height, cam.width), np.uint8)
+    uv, z = cam.project(points)
+    ok = (z > 0) & np.isfinite(uv).all(1)
+    cols, rows = np.round(uv[ok, 0]).astype(int), np.round(uv[ok, 1]).astype(int)
+    inside = (cols >= 0) & (cols < cam.width) & (rows >= 0) & (rows < cam.height)
+    region[rows[inside], cols[inside]] = 1
+    if not inside.any():
+        return region.astype(bool)
+    r = int(np.ceil(float(cam.K[0, 0]) * voxel / float(np.median(z[ok])))) + 1
+    return cv2.dilate(region, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))) > 0
