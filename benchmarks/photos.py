@@ -76,7 +76,7 @@ def _reference(data: Path) -> dict:
 
 def rotation_errors(estimated: dict, reference: dict) -> dict[str, float]:
     """Degrees, per photo: estimated vs reference rotation after the similarity of the camera centres."""
-    from go_core.alignment import umeyama
+    from go_core.poses.similarity import umeyama
 
     names = sorted(estimated)
     sim = umeyama(
