@@ -155,11 +155,18 @@ def run(ctx, inputs: dict[str, Path], params: SceneParams) -> None:
         path = art.SCENE_INFO.path(ctx.out_dir)
         raise SceneError(f"does not match scene_manifest.schema.json: {problems[0]}", path)
     if 0 < max_size < scene.original_max_side:
+        setting, keep = (
+            ("scene.photo_size", "--set scene.photo_size=800 trains on larger images")
+            if scene.format == "photos"
+            else ("scene.max_size", "--set scene.max_size=0 keeps the full resolution")
+        )
         ctx.log.warning(
-            "images up to %d px on their longest side were downscaled to %d px (scene.max_size; "
-            "--set scene.max_size=0 keeps the full resolution: slower, and memory grows with the pixels)",
+            "images up to %d px on their longest side were downscaled to %d px (%s; %s: slower, and memory "
+            "grows with the pixels)",
             scene.original_max_side,
             max_size,
+            setting,
+            keep,
         )
     sizes = sorted({f"{c['width']}x{c['height']}" for c in manifest["train"] + manifest["test"]})
     ctx.log.info(

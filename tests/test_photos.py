@@ -218,3 +218,38 @@ def test_disk_lightglue_registers_the_synthetic_capture(capture):
     views = scene.train + scene.test
     by_name = {f"IMG_{k:04d}": cam for k, cam in enumerate(truth)}
     assert rotation_errors_deg([v.camera for v in views], [by_name[v.name] for v in views]).max() < 1.0
+
+
+def test_registration_bar_stops_at_the_photo_count():
+    """COLMAP calls back again for a second model's initial pair: the bar must not pass 100 % (it showed
+    67/66 on photos/ethiopian_head)."""
+    from go_core.photos.sfm import _at_most
+
+    seen = []
+    advance = _at_most(seen.append, 5)
+    for k in (2, 1, 1, 2, 1, 2):
+        advance(k)
+    assert seen == [2, 1, 1, 1] and sum(seen) == 5
+
+
+def test_sfm_reads_the_photos_at_sfm_size_when_larger_than_the_photo_size(capture, monkeypatch):
+    """sfm_size 640 was capped by photo_size 512 (SfM ran on the training-size images): SfM must see the
+    photos at its own size, the masks resized to them, and the training images stay at the photo size."""
+    import go_core.photos.scene as photo_scene
+    from go_core.errors import PoseCheckError
+
+    folder, _ = capture  # 256-px photos
+    seen = []
+
+    def record(photos, settings, **kwargs):
+        seen.extend((p.image.shape[:2], p.mask.shape[:2]) for p in photos)
+        raise PoseCheckError("stop here")
+
+    monkeypatch.setattr(photo_scene, "run_sfm", record)
+    sfm = SfmSettings("sift", 256, 6)
+    for photo_size, sfm_size, expected in ((128, 200, 200), (128, 96, 96), (64, 1000, 256)):
+        seen.clear()
+        with pytest.raises(SceneError, match="stop here"):
+            read_photo_scene(folder.parent, PhotoSettings(4, photo_size, sfm_size, 0.9, sfm), np.ones_like)
+        assert {shape for shape, _ in seen} == {(expected, expected)}, (photo_size, sfm_size)
+        assert all(image == mask for image, mask in seen)

@@ -1,7 +1,8 @@
 """A folder of photos without poses read into a posed ``Scene``: masks, SfM on every photo, N training views.
 
-1. Photos are read upright (EXIF) at ``photo_size`` (``go_core.photos.folder``); unreadable photos, too few
-   photos and duplicates are errors naming the files.
+1. Photos are read upright (EXIF) at ``photo_size`` (``go_core.photos.folder``), and again at ``sfm_size``
+   for SfM when that is larger; unreadable photos, too few photos and duplicates are errors naming the
+   files.
 2. Masks: a photo's own alpha when every photo has one, else ``masker`` (the auto masks) on every photo.
 3. SfM (``go_core.photos.sfm``) at ``sfm_size``: first with features inside the masks (works for a
    turntable, whose background is static relative to the camera, and for a walk around a static object),
@@ -138,6 +139,25 @@ def _resize(a: np.ndarray, long_side: int) -> np.ndarray:
     return cv2.resize(a, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
 
 
+def _resize_to(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``mask`` at exactly ``shape`` (the masks are made at the photo size, SfM may read larger images)."""
+    import cv2
+
+    if mask.shape[:2] == tuple(shape):
+        return mask
+    return cv2.resize(mask, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+
+
+def _sfm_images(
+    files: list[PhotoFile], images: list[np.ndarray], settings: PhotoSettings
+) -> list[np.ndarray]:
+    """The photos as SfM reads them: at ``sfm_size`` when that is larger than ``photo_size`` (read again
+    from the files, so that the training images stay one area-filtered resize of the originals)."""
+    if settings.sfm_size <= settings.photo_size:
+        return images
+    return [read_photo(f, settings.sfm_size)[0] for f in files]
+
+
 def _unposed_message(missing: list[str], total: int, other_models: list[list[str]]) -> str:
     names = ", ".join(missing[:12]) + (f" and {len(missing) - 12} more" if len(missing) > 12 else "")
     if other_models and len(other_models[0]) >= 3:
@@ -212,10 +232,10 @@ def pose_photos(
 ) -> tuple[SfmOutcome, list[dict]]:
     """SfM with masked features, then on whole images; the first result that passes (module docstring).
     Returns it and a record of every attempt; raises ``SceneError`` with the reasons when none passes."""
-    photos = [
-        SfmPhoto(n, _resize(img, settings.sfm_size), _resize(m, settings.sfm_size), g, f)
-        for n, img, m, g, f in zip(names, images, masks, groups, focal_px, strict=True)
-    ]
+    photos = []
+    for n, img, m, g, f in zip(names, images, masks, groups, focal_px, strict=True):
+        img = _resize(img, settings.sfm_size)
+        photos.append(SfmPhoto(n, img, _resize_to(m, img.shape[:2]), g, f))
     attempts, failures = [], []
     for masked in (True, False):
         start = time.perf_counter()
@@ -279,10 +299,12 @@ def read_photo_scene(
     images, alphas = _read_all(files, settings.photo_size, progress)
     masks, mask_source = _masks(images, alphas, masker, progress)
     groups = camera_groups(files)
-    focal = [f.focal_px(settings.sfm_size) for f in files]
+    sfm_images = _sfm_images(files, images, settings)
+    focal = [f.focal_px(max(img.shape[:2])) for f, img in zip(files, sfm_images, strict=True)]
     names = [f.name for f in files]
     folder = files[0].path.parent
-    out, attempts = pose_photos(names, images, masks, groups, focal, settings, progress, log_path, folder)
+    out, attempts = pose_photos(names, sfm_images, masks, groups, focal, settings, progress, log_path, folder)
+    del sfm_images
     sim = normalising_similarity(list(out.cameras.values()))
     cams = {n: sim.camera(c) for n, c in out.cameras.items()}
     posed = [i for i, n in enumerate(names) if n in cams]

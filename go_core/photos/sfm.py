@@ -338,6 +338,21 @@ def _verified_pairs(db_path: Path) -> int:
         db.close()
 
 
+def _at_most(advance: Callable[[int], None], total: int) -> Callable[[int], None]:
+    """``advance`` that stops at ``total``: COLMAP calls back again for each further model it starts (a
+    second initial pair, photos registered twice), which would count past the number of photos."""
+    done = 0
+
+    def step(k: int) -> None:
+        nonlocal done
+        k = min(k, total - done)
+        if k > 0:
+            done += k
+            advance(k)
+
+    return step
+
+
 def run_sfm(
     photos: list[SfmPhoto],
     settings: SfmSettings,
@@ -370,7 +385,7 @@ def run_sfm(
             options.num_threads = settings.num_threads
             options.random_seed = settings.seed
             options.ba_refine_principal_point = False
-            advance = progress("photos registered", len(photos))
+            advance = _at_most(progress("photos registered", len(photos)), len(photos))
             (work / "sparse").mkdir()
             recs = pycolmap.incremental_mapping(
                 work / "database.db",

@@ -1,0 +1,143 @@
+"""SfM settings on a photo set with a reference/ folder (issue 32): the product's own SfM (``run_sfm``, one
+thread, as the scene step runs it) on the product's own auto masks, for several feature sizes, feature
+counts and pair windows; scored against ``reference/`` (evaluation only): photos posed, rotation error
+after a similarity alignment of the camera centres, focal length, seconds.
+
+The masks are the scene step's (u2netp on the photos at ``scene.photo_size``, before the pose vote),
+made once and kept in ``--tmp``, resized to the feature size; ``--masks reference`` uses the reference
+masks instead (to separate mask error from SfM error). The product ran SfM at 512 px (sfm_size 640 was
+capped by the photo size) until the scene step read the photos at the larger of the two.
+
+    python benchmarks/photos_sfm.py --variant 640:2048:6 --variant 800:4096:6
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from photos import DATA, _reference, rotation_errors  # noqa: E402
+
+OUT = Path(__file__).resolve().parent / "results" / "photos_sfm_ethiopian_head.json"
+
+
+def _auto_masks(files, tmp: Path) -> list[np.ndarray]:
+    """The scene step's auto masks: u2netp on the photos read at ``scene.photo_size`` (cached in ``tmp``)."""
+    import fcntl
+
+    from go_pipeline.steps.params import SceneParams
+
+    from go_core.photos.folder import read_photo
+    from go_core.photos.masks import photo_masker
+
+    size = SceneParams().photo_size
+    cache = tmp / f"auto_masks_{size}.npz"
+    tmp.mkdir(parents=True, exist_ok=True)
+    with open(tmp / "masks.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not cache.is_file():
+            masker, _ = photo_masker("auto")
+            ms = [np.asarray(masker(read_photo(f, size)[0]), np.float32) for f in files]
+            np.savez_compressed(cache, masks=np.stack(ms))
+        return list(np.load(cache)["masks"])
+
+
+def _photos(data: Path, size: int, masks: str, tmp: Path):
+    """SfmPhotos at ``size`` with the product's auto masks (cached) or the reference masks."""
+    import cv2
+
+    from go_core.io.images import read_mask
+    from go_core.photos.folder import camera_groups, photo_files, read_photo, scan_photo
+    from go_core.photos.sfm import SfmPhoto
+    from go_core.scene.common import Problems
+
+    files = [scan_photo(f, Problems(strict=True)) for f in photo_files(data / "images")]
+    images = [read_photo(f, size)[0] for f in files]
+    if masks == "reference":
+        ms = [read_mask(data / "reference" / "masks" / f"{f.name}.png") for f in files]
+    else:
+        ms = _auto_masks(files, tmp)
+    ms = [
+        cv2.resize(m, im.shape[1::-1], interpolation=cv2.INTER_LINEAR)
+        for m, im in zip(ms, images, strict=True)
+    ]
+    groups = camera_groups(files)
+    return [
+        SfmPhoto(f.name, im, m, g, f.focal_px(size))
+        for f, im, m, g in zip(files, images, ms, groups, strict=True)
+    ]
+
+
+def run_variant(data: Path, variant: str, masks: str, tmp: Path, matcher: str) -> dict:
+    from go_core.photos.sfm import SfmSettings, run_sfm
+
+    size, features, window = (int(x) for x in variant.split(":"))
+    photos = _photos(data, size, masks, tmp)
+    start = time.perf_counter()
+    out = run_sfm(
+        photos,
+        SfmSettings(matcher, features, window),
+        use_masks=True,
+        log_path=tmp / f"colmap_{variant.replace(':', '_')}.log",
+    )
+    seconds = time.perf_counter() - start
+    ref = _reference(data)
+    rot = rotation_errors(out.cameras, ref)
+    focal = [
+        c.K[0, 0] * max(ref[n].width, ref[n].height) / max(c.width, c.height) for n, c in out.cameras.items()
+    ]
+    return {
+        "size": size,
+        "features": features,
+        "window": window,
+        "matcher": matcher,
+        "masks": masks,
+        "registered": len(out.cameras),
+        "photos": len(photos),
+        "missing": out.missing,
+        "rotation_error_deg": {"median": float(np.median(list(rot.values()))), "max": max(rot.values())},
+        "worst": sorted(rot, key=rot.get)[-3:],
+        "mean_reprojection_px": round(out.mean_reprojection_px, 4),
+        "focal_px_at_reference_size": round(float(np.median(focal)), 1),
+        "reference_focal_px": round(float(next(iter(ref.values())).K[0, 0]), 1),
+        "pairs": out.num_pairs,
+        "sfm_s": round(seconds, 1),
+        "threads": 1,
+    }
+
+
+def _save(out: Path, key: str, result: dict, data: Path) -> None:
+    """Add one variant to the JSON (locked: variants run side by side in two CPU slots)."""
+    import fcntl
+
+    with open(out.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        doc = json.loads(out.read_text()) if out.is_file() else {"data": str(data), "runs": {}}
+        doc["runs"][key] = result
+        out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--variant", action="append", required=True, help="SIZE:FEATURES:WINDOW")
+    p.add_argument("--masks", choices=["auto", "reference"], default="auto")
+    p.add_argument("--matcher", choices=["sift", "disk"], default="sift")
+    p.add_argument("--data", type=Path, default=DATA)
+    p.add_argument("--tmp", type=Path, default=Path("/tmp/go-photos-sfm"))
+    p.add_argument("--out", type=Path, default=OUT)
+    args = p.parse_args()
+    for variant in args.variant:
+        result = run_variant(args.data, variant, args.masks, args.tmp, args.matcher)
+        _save(args.out, f"{args.matcher}:{args.masks}:{variant}", result, args.data)
+        print(json.dumps(result), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
