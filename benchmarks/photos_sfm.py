@@ -17,6 +17,7 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -74,18 +75,20 @@ def _photos(data: Path, size: int, masks: str, tmp: Path):
     ]
 
 
-def run_variant(data: Path, variant: str, masks: str, tmp: Path, matcher: str) -> dict:
+def run_variant(data: Path, variant: str, masks: str, tmp: Path, matcher: str, agreement: bool) -> dict:
+    from go_core.photos.agreement import sfm_agreeing
     from go_core.photos.sfm import SfmSettings, run_sfm
 
     size, features, window = (int(x) for x in variant.split(":"))
     photos = _photos(data, size, masks, tmp)
     start = time.perf_counter()
-    out = run_sfm(
-        photos,
-        SfmSettings(matcher, features, window),
+    sfm = partial(
+        run_sfm,
+        settings=SfmSettings(matcher, features, window),
         use_masks=True,
         log_path=tmp / f"colmap_{variant.replace(':', '_')}.log",
     )
+    out, left_out = sfm_agreeing(photos, sfm) if agreement else (sfm(photos), {})
     seconds = time.perf_counter() - start
     ref = _reference(data)
     rot = rotation_errors(out.cameras, ref)
@@ -101,6 +104,8 @@ def run_variant(data: Path, variant: str, masks: str, tmp: Path, matcher: str) -
         "registered": len(out.cameras),
         "photos": len(photos),
         "missing": out.missing,
+        "agreement_check": agreement,
+        "left_out_disagreeing_with_masks": left_out,
         "rotation_error_deg": {"median": float(np.median(list(rot.values()))), "max": max(rot.values())},
         "worst": sorted(rot, key=rot.get)[-3:],
         "mean_reprojection_px": round(out.mean_reprojection_px, 4),
@@ -128,13 +133,15 @@ def main() -> int:
     p.add_argument("--variant", action="append", required=True, help="SIZE:FEATURES:WINDOW")
     p.add_argument("--masks", choices=["auto", "reference"], default="auto")
     p.add_argument("--matcher", choices=["sift", "disk"], default="sift")
+    p.add_argument("--no-agreement", action="store_true", help="SfM alone, without the pose-mask agreement")
     p.add_argument("--data", type=Path, default=DATA)
     p.add_argument("--tmp", type=Path, default=Path("/tmp/go-photos-sfm"))
     p.add_argument("--out", type=Path, default=OUT)
     args = p.parse_args()
     for variant in args.variant:
-        result = run_variant(args.data, variant, args.masks, args.tmp, args.matcher)
-        _save(args.out, f"{args.matcher}:{args.masks}:{variant}", result, args.data)
+        result = run_variant(args.data, variant, args.masks, args.tmp, args.matcher, not args.no_agreement)
+        key = f"{args.matcher}:{args.masks}:{variant}" + (":no_agreement_check" if args.no_agreement else "")
+        _save(args.out, key, result, args.data)
         print(json.dumps(result), flush=True)
     return 0
 

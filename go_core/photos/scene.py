@@ -20,12 +20,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from go_core.camera import Camera
 from go_core.errors import PoseCheckError, SceneError
+from go_core.photos.agreement import sfm_agreeing
 from go_core.photos.folder import (
     MIN_PHOTOS,
     PhotoFile,
@@ -241,7 +243,10 @@ def pose_photos(
         start = time.perf_counter()
         label = "object features (inside the masks)" if masked else "whole images"
         try:
-            out = run_sfm(photos, settings.sfm, use_masks=masked, progress=progress, log_path=log_path)
+            sfm = partial(
+                run_sfm, settings=settings.sfm, use_masks=masked, progress=progress, log_path=log_path
+            )
+            out, left_out = sfm_agreeing(photos, sfm)
         except PoseCheckError as exc:
             attempts.append({"masked": masked, "error": str(exc)})
             failures.append(f"{label}: {exc}")
@@ -256,6 +261,7 @@ def pose_photos(
                 "verified_pairs": out.num_verified_pairs,
                 "pairs": out.num_pairs,
                 "problems": problems,
+                "left_out_disagreeing_with_masks": left_out,
                 "seconds": round(time.perf_counter() - start, 1),
             }
         )

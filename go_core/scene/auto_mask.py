@@ -167,17 +167,16 @@ def carry_box_with_poses(box: Box, ref, cameras: list, widen: float = HINT_WIDEN
     return out
 
 
-def hull_vote_masks(
+def hull_vote_voxels(
     masks: list[np.ndarray],
     cameras: list,
     vote: float = HULL_VOTE,
     resolution: int = 96,
     threshold: float = 0.5,
-) -> list[np.ndarray]:
-    """Masks made consistent through the poses: each mask ∩ the projection of the voxels that at least
-    ``vote`` of the views seeing them put inside their masks (a visual hull that tolerates a few wrong
-    masks). What one view's salient-object map wrongly takes in (a turntable disc, a stand) is carved away
-    by the views that leave it out. Returns float32 {0, 1} masks, largest component, holes filled."""
+) -> tuple[np.ndarray, float]:
+    """(voxel centres [N, 3], voxel size): the voxels that at least ``vote`` of the views seeing them put
+    inside their masks (a visual hull that tolerates a few wrong masks). Raises ``EmptyHullError`` when the
+    masks agree on no region."""
     import math
 
     from go_core.coarse.hull import hull_bounds, inside_masks
@@ -192,12 +191,25 @@ def hull_vote_masks(
         uv, z = cam.project(grid)
         seen += (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
     kept = grid[(inside >= vote * seen) & (seen > 0)]
-    voxel = float(np.max((hi - lo) / (resolution - 1)))
-    out = []
-    for cam, mask in zip(cameras, masks, strict=True):
-        region = _splat(cam, kept, voxel)
-        out.append(fill_holes(largest_component((mask > threshold) & region)).astype(np.float32))
-    return out
+    return kept, float(np.max((hi - lo) / (resolution - 1)))
+
+
+def hull_vote_masks(
+    masks: list[np.ndarray],
+    cameras: list,
+    vote: float = HULL_VOTE,
+    resolution: int = 96,
+    threshold: float = 0.5,
+) -> list[np.ndarray]:
+    """Masks made consistent through the poses: each mask ∩ the projection of the ``hull_vote_voxels``. What
+    one view's salient-object map wrongly takes in (a turntable disc, a stand) is carved away by the views
+    that leave it out. Returns float32 {0, 1} masks, largest component, holes filled."""
+    kept, voxel = hull_vote_voxels(masks, cameras, vote, resolution, threshold)
+    regions = [_splat(cam, kept, voxel) for cam in cameras]
+    return [
+        fill_holes(largest_component((mask > threshold) & region)).astype(np.float32)
+        for mask, region in zip(masks, regions, strict=True)
+    ]
 
 
 def _splat(cam, points: np.ndarray, voxel: float) -> np.ndarray:
