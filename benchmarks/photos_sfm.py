@@ -128,9 +128,30 @@ def _save(out: Path, key: str, result: dict, data: Path) -> None:
         out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
 
 
+def table(doc: dict) -> str:
+    """The markdown table of docs/photos.md from the JSON."""
+    rows = [
+        "| SfM size | features | agreement check | posed | rotation error median / max (deg) "
+        "| focal (px, ref 1885.9) | left out by the check | SfM s (1 thread) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    runs = sorted(doc["runs"].values(), key=lambda r: (r["size"], r["features"], r["agreement_check"]))
+    for r in runs:
+        rot = r["rotation_error_deg"]
+        left_out = ", ".join(r.get("left_out_disagreeing_with_masks") or []) or "-"
+        rows.append(
+            f"| {r['size']} | {r['features']} | {'yes' if r['agreement_check'] else 'no'} "
+            f"| {r['registered']}/{r['photos']} | {rot['median']:.2f} / {rot['max']:.2f} "
+            f"| {r['focal_px_at_reference_size']} | {left_out} "
+            f"| {r['sfm_s']} |"
+        )
+    return "\n".join(rows)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--variant", action="append", required=True, help="SIZE:FEATURES:WINDOW")
+    p.add_argument("--variant", action="append", default=[], help="SIZE:FEATURES:WINDOW")
+    p.add_argument("--table", action="store_true", help="print the docs table of the JSON")
     p.add_argument("--masks", choices=["auto", "reference"], default="auto")
     p.add_argument("--matcher", choices=["sift", "disk"], default="sift")
     p.add_argument("--no-agreement", action="store_true", help="SfM alone, without the pose-mask agreement")
@@ -138,6 +159,9 @@ def main() -> int:
     p.add_argument("--tmp", type=Path, default=Path("/tmp/go-photos-sfm"))
     p.add_argument("--out", type=Path, default=OUT)
     args = p.parse_args()
+    if args.table:
+        print(table(json.loads(args.out.read_text())))
+        return 0
     for variant in args.variant:
         result = run_variant(args.data, variant, args.masks, args.tmp, args.matcher, not args.no_agreement)
         key = f"{args.matcher}:{args.masks}:{variant}" + (":no_agreement_check" if args.no_agreement else "")
