@@ -201,15 +201,27 @@ class DevTools:
         self.close()
 
 
-def viewer_shot(html: Path, kind: str = "test", index: int = 0, timeout: float = 180.0) -> np.ndarray:
+def viewer_shot(
+    html: Path,
+    kind: str = "test",
+    index: int = 0,
+    timeout: float = 180.0,
+    view: str = "splats",
+    clear: str | None = None,
+) -> np.ndarray:
     """The report's 3D viewer put on scene camera ``index`` of ``kind`` (train / test), at the camera's own
-    size: what the browser shows, RGB uint8 [H, W, 3]."""
+    size, showing ``view`` ("splats" or "mesh"), on the background ``clear`` (a CSS colour; default the
+    report's): what the browser shows, RGB uint8 [H, W, 3]."""
     with DevTools(timeout=timeout) as tab:
         tab.open(html.resolve().as_uri())
         tab.evaluate(
             "(async () => { while (!window.goViewer) await new Promise(r => setTimeout(r, 50)); "
             "await window.goViewer.ready; return true; })()"
         )
+        if clear is not None:
+            tab.evaluate(f"window.goViewer.renderer.setClearColor({json.dumps(clear)}, 1)")
+        if view != "splats":
+            tab.evaluate(f"window.goViewer.showTab({json.dumps(view)})")
         cam = tab.evaluate(f"window.goViewer.data.cameras[{json.dumps(kind)}][{int(index)}]")
         clip = tab.evaluate(
             f"window.goViewer.showView({json.dumps(kind)}, {int(index)}, {cam['width']}, {cam['height']})"

@@ -70,3 +70,38 @@ def test_report_viewer_matches_the_rasterizer_on_a_test_camera(example, tmp_path
 
 def viewer_u8(img: np.ndarray) -> np.ndarray:
     return (img * 255).round().astype(np.uint8)
+
+
+MESH_MIN_IOU = 0.95  # the viewer's mesh vs go-pipeline's own silhouette of model_mesh.ply
+MESH_MAX_COLOUR_ERROR = 0.1  # mean |RGB| per channel, mesh in the viewer vs the splat render (provisional)
+
+
+@pytest.mark.slow
+@needs_chromium
+def test_report_viewer_mesh_tab_draws_the_mesh_on_a_test_camera(example, tmp_path):
+    """The mesh tab shows the mesh step's model_mesh.ply where go-pipeline's OpenCV polygon fill puts it
+    (same camera), in its vertex colours (sRGB, not gamma-shifted: compared with the splat render)."""
+    from PIL import Image
+
+    from go_core import artifacts as art
+    from go_core.mesh.files import read_ply
+    from go_core.metrics.geometry import silhouette
+    from go_core.ply import load_ply
+    from go_core.render import render_camera
+    from go_pipeline import store
+
+    outputs = example / ".go" / "outputs"
+    _, test = art.read_scene_cameras(store.artifact_dir(example / ".go", "scene"))
+    index = len(test) // 2
+    sil = silhouette(read_ply(outputs / "model_mesh.ply"), test[index])
+    shown = shot.viewer_shot(outputs / "report.html", "test", index, view="mesh", clear="#ff00ff")
+    Image.fromarray(shown).save(tmp_path / "viewer_mesh.png")
+    rgb = shown.astype(np.float64) / 255.0
+    drawn = np.abs(rgb - [1.0, 0.0, 1.0]).max(-1) > 0.2  # anything but the magenta background
+    assert shown.shape[:2] == sil.shape and sil.mean() > 0.02
+    iou = (drawn & sil).sum() / (drawn | sil).sum()
+    assert iou >= MESH_MIN_IOU, f"viewer's mesh vs go-pipeline's mesh silhouette: IoU {iou:.3f}"
+    splats = render_camera(load_ply(outputs / "model.ply"), test[index], background=torch.ones(3))
+    both = drawn & sil & (splats.alpha[0, ..., 0].numpy() > 0.99)
+    error = np.abs(rgb - splats.rgb[0].clamp(0, 1).double().numpy())[both].mean(0)
+    assert (error < MESH_MAX_COLOUR_ERROR).all(), f"mean |RGB| mesh (viewer) vs splats (rasterizer): {error}"

@@ -360,7 +360,8 @@ def _data_uri(path: Path) -> str:
 
 
 def _viewer_block(report: dict) -> str | None:
-    """The interactive viewer of the exported model with the scene's cameras, when both are on disk."""
+    """The interactive viewer of the exported model with the scene's cameras, when both are on disk (and
+    of the mesh, when the mesh step wrote one)."""
     files = report.get("files", {})
     if not files.get("model_ply") or not files.get("scene_cameras"):
         return None
@@ -368,7 +369,8 @@ def _viewer_block(report: dict) -> str | None:
 
     turntable = next((s["params"] for s in report["steps"] if s["name"] == "turntable"), {})
     background = turntable.get("background", (1.0, 1.0, 1.0))
-    data = viewer_data(Path(files["model_ply"]), Path(files["scene_cameras"]).parent, background)
+    mesh = Path(files["model_mesh"]) if files.get("model_mesh") else None
+    data = viewer_data(Path(files["model_ply"]), Path(files["scene_cameras"]).parent, background, mesh)
     return viewer_html(data)
 
 

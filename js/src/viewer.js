@@ -3,12 +3,15 @@
 //
 // The page holds <script type="application/json" id="go-viewer-data"> with {model: base64 .spz, cameras:
 // {train: [...], test: [...]}, background: [r, g, b]} (cameras in go-pipeline's convention: OpenCV,
-// world-to-camera R | t, pixel centres at +0.5, fx fy cx cy in pixels of width x height) and a
+// world-to-camera R | t, pixel centres at +0.5, fx fy cx cy in pixels of width x height), optionally
+// mesh: base64 gzip of the mesh step's model_mesh.ply (world frame, vertex colours), and a
 // <div id="go-viewer">. window.goViewer.ready resolves once the model is loaded and drawn;
-// goViewer.showView(kind, index, width, height) puts the camera exactly on a scene camera.
+// goViewer.showView(kind, index, width, height) puts the camera exactly on a scene camera;
+// goViewer.showTab("mesh" | "splats") shows the mesh (loaded on first use) or the splats from the same camera.
 import { SparkRenderer, SplatFileType, SplatMesh } from "@sparkjsdev/spark";
 import * as THREE from "three";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+import { PLYLoader } from "three/examples/jsm/loaders/PLYLoader.js";
 
 const NEAR = 0.01; // go-pipeline's rasterizer: near_plane 0.01
 const FAR = 1000.0;
@@ -46,6 +49,24 @@ function cameraToWorld(cam) {
   return w2c.invert().multiply(flip);
 }
 
+async function gunzip(bytes) {
+  const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("gzip"));
+  return new Response(stream).arrayBuffer();
+}
+
+// The mesh step's model_mesh.ply (world frame, sRGB vertex colours: PLYLoader turns them linear) as a
+// three.js mesh with two materials: the vertex colours as they are (unlit) and the same colours shaded
+// by a light at the camera, which shows the shape.
+async function loadSurface(b64) {
+  const geometry = new PLYLoader().parse(await gunzip(b64ToBytes(b64)));
+  geometry.computeVertexNormals();
+  const materials = {
+    colours: new THREE.MeshBasicMaterial({ vertexColors: true, side: THREE.DoubleSide }),
+    shaded: new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide }),
+  };
+  return { mesh: new THREE.Mesh(geometry, materials.colours), materials, faces: geometry.index.count / 3 };
+}
+
 function frameSleep(n) {
   return new Promise((resolve) => {
     const step = (k) => (k <= 0 ? resolve() : requestAnimationFrame(() => step(k - 1)));
@@ -66,6 +87,7 @@ class Viewer {
     this.renderer.setPixelRatio(1);
     this.renderer.setClearColor(new THREE.Color(...data.background), 1);
     this.scene = new THREE.Scene();
+    this.splatScene = this.scene;
     // the rasterizer's conventions: 3 sigma extent, 0.3 px² dilation without opacity compensation
     this.spark = new SparkRenderer({
       renderer: this.renderer,
@@ -104,6 +126,35 @@ class Viewer {
     return this;
   }
 
+  // the mesh's own scene (ambient light + a light from the camera towards the orbit target, for "shaded")
+  async meshScene() {
+    if (!this.surfaceScene) {
+      this.surfaceScene = (async () => {
+        const surface = await loadSurface(this.data.mesh);
+        const scene = new THREE.Scene();
+        this.headlight = new THREE.DirectionalLight(0xffffff, 2.2);
+        scene.add(surface.mesh, new THREE.AmbientLight(0xffffff, 0.35), this.headlight, this.headlight.target);
+        this.surface = surface;
+        return scene;
+      })();
+    }
+    return this.surfaceScene;
+  }
+
+  // Show "mesh" (the mesh step's surface; "shaded" as a variant) or "splats", from the current camera.
+  async showTab(tab, shaded = false) {
+    if (tab === "mesh" && !this.data.mesh) throw new Error("this report has no mesh");
+    this.scene = tab === "mesh" ? await this.meshScene() : this.splatScene;
+    if (tab === "mesh") this.surface.mesh.material = this.surface.materials[shaded ? "shaded" : "colours"];
+    this.tab = tab;
+    this.root.querySelectorAll(".go-viewer-tabs button").forEach((b) => {
+      b.classList.toggle("go-active", b.dataset.tab === (tab === "mesh" && shaded ? "shaded" : tab));
+    });
+    this.draw();
+    await frameSleep(2);
+    return tab;
+  }
+
   resize(width, height) {
     this.renderer.setSize(width, height, false);
     this.canvas.style.width = `${width}px`;
@@ -113,6 +164,10 @@ class Viewer {
   draw() {
     if (this.activeCamera) this.camera.projectionMatrix.copy(projection(this.activeCamera));
     this.camera.projectionMatrixInverse.copy(this.camera.projectionMatrix).invert();
+    if (this.headlight) {
+      this.headlight.position.copy(this.camera.position);
+      this.headlight.target.position.copy(this.controls.target);
+    }
     this.renderer.render(this.scene, this.camera);
   }
 
@@ -138,7 +193,7 @@ class Viewer {
     const forward = new THREE.Vector3(0, 0, -1).applyQuaternion(this.camera.quaternion);
     const depth = Math.max(this.center.clone().sub(this.camera.position).dot(forward), NEAR * 10);
     this.controls.target.copy(this.camera.position).addScaledVector(forward, depth);
-    this.label(`${kind} camera ${cam.name}`);
+    this.label(`${kind} camera ${cam.name}${this.tab === "mesh" ? `, mesh (${this.surface.faces} faces)` : ""}`);
     this.draw();
     await frameSleep(4);
     await new Promise((resolve) => setTimeout(resolve, 300));
@@ -165,12 +220,20 @@ function buttons(root, viewer) {
   }
 }
 
+function tabs(root, viewer) {
+  root.querySelectorAll(".go-viewer-tabs button").forEach((b) => {
+    const [tab, shaded] = b.dataset.tab === "shaded" ? ["mesh", true] : [b.dataset.tab, false];
+    b.addEventListener("click", () => viewer.showTab(tab, shaded).catch((err) => viewer.label(`${err}`)));
+  });
+}
+
 function start() {
   const root = document.getElementById("go-viewer");
   const holder = document.getElementById("go-viewer-data");
   if (!root || !holder) return;
   const viewer = new Viewer(root, JSON.parse(holder.textContent));
   buttons(root, viewer);
+  tabs(root, viewer);
   window.goViewer = viewer;
   viewer.ready.catch((err) => viewer.label(`viewer error: ${err}`));
 }
