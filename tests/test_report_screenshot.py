@@ -72,8 +72,8 @@ def viewer_u8(img: np.ndarray) -> np.ndarray:
     return (img * 255).round().astype(np.uint8)
 
 
-MESH_MIN_IOU = 0.95  # the viewer's mesh vs go-pipeline's own silhouette of model_mesh.ply
-MESH_MAX_COLOUR_ERROR = 0.1  # mean |RGB| per channel, mesh in the viewer vs the splat render (provisional)
+MESH_MIN_IOU = 0.95  # vs go-pipeline's own silhouette of model_mesh.ply: 0.981 measured (test view 4)
+MESH_MAX_COLOUR_ERROR = 0.04  # mean |RGB| vs the splat render: 0.017 measured; 0.06-0.10 gamma-doubled
 
 
 @pytest.mark.slow
