@@ -118,7 +118,7 @@ class Viewer {
     this.mesh = new SplatMesh({ fileBytes: b64ToBytes(this.data.model), fileType: SplatFileType.SPZ });
     await this.mesh.initialized;
     this.mesh.quaternion.set(1, 0, 0, 0); // .spz holds RUB: turned 180 degrees about x back to OpenCV world
-    this.scene.add(this.mesh);
+    this.splatScene.add(this.mesh); // the splats' scene, even if the mesh tab opened first
     this.center = new THREE.Vector3(...this.data.center);
     const kind = this.data.cameras.test.length ? "test" : "train";
     await this.showView(kind, 0);
