@@ -52,7 +52,7 @@ def _places(name: str, value) -> list[str]:
 RESTATED = {
     "views": {"go_core/scene/loader.py", "go_core/scene/validate.py"},  # 0: the scene's own split
     "poses": {"go_core/scene/artifact.py"},  # Ingest(): a record of how the scene step ingested
-    "guidance_scale": {"go_core/diffusion/sampler.py"},  # RepairDiffusion: the tune step builds it without one
+    "guidance_scale": {"go_core/diffusion/sampler.py"},  # the tune step builds RepairDiffusion without one
     "backend": {"go_core/poses/refine.py", "go_core/render/api.py"},  # "auto": the renderer's own choice
 }
 
