@@ -51,7 +51,7 @@ VARIANTS = {
     "hull_paper": {"init": "hull", "params": {"floater_schedule": "paper"}},
     "hull_code": {"init": "hull", "params": {"floater_schedule": "code"}},
     "no_floaters": {"init": "hull", "params": {"floaters": False}},
-    # regularisers (docs/coarse.md, "Sparse-view regularisers")
+    # regularisers (benchmarks/results/coarse_dev.md, "Sparse-view regularisers")
     "drop": {"init": "hull", "params": {"drop_gamma": 0.2}},
     "outside": {"init": "hull", "params": {"lambda_outside": 0.1}},
     "mask10": {"init": "hull", "params": {"lambda_mask": 0.1}},

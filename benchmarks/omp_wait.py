@@ -51,7 +51,9 @@ def child(scene_dir: Path, iterations: int, warmup: int) -> dict:
     scene = load_scene(scene_dir)
     cams = scene.train_cameras
     masks = [v.mask for v in scene.train]
-    hull = visual_hull(cams, masks, [v.image for v in scene.train], num_points=20_000, seed=0)
+    hull = visual_hull(
+        cams, masks, [v.image for v in scene.train], num_points=20_000, all_but_one=False, seed=0
+    )
     init = points_to_gaussians(hull.points, hull.colors, opacity=0.1)
     views = [TrainView.from_arrays(v.camera, v.image, m) for v, m in zip(scene.train, masks, strict=True)]
     config = CoarseConfig(iterations=iterations, floaters=False, sh_increase_every=1)

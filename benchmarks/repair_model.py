@@ -51,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     from go_core.diffusion.lora import LoraSpec, add_lora, lora_parameters
     from go_core.diffusion.models import precision_dtypes
     from go_core.diffusion.sampler import RepairDiffusion
+    from go_core.repair.settings import RepairSettings
 
     cuda = torch.cuda.is_available()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -85,7 +86,10 @@ def main(argv: list[str] | None = None) -> int:
         models = build_random_models(arch, seed=0, tokenizer_dir=tok)
         build_s = time.perf_counter() - t0
     models.to(args.device, weight_dtype)
-    counts = add_lora(models, LoraSpec(rank=args.rank, alpha=float(args.rank)))
+    counts = add_lora(
+        models,
+        LoraSpec(rank=args.rank, alpha=float(args.rank), unet=True, controlnet=True, text_encoder=True),
+    )
     for m in models.modules().values():
         m.to(args.device)
     diffusion = RepairDiffusion(models, device=args.device, autocast_dtype=autocast_dtype)
@@ -108,10 +112,17 @@ def main(argv: list[str] | None = None) -> int:
         getattr(models, m).eval()
 
     mean_strength = 0.55  # E[t/T] for t/T ~ U(0.1, 1.0)
-    steps = diffusion.steps_for(mean_strength)
+    ddim = RepairSettings()  # the repair step's DDIM settings
+    steps = diffusion.steps_for(mean_strength, ddim.num_inference_steps)
 
     def repair_one() -> None:
-        diffusion.repair(deg.to(args.device), mean_strength, torch.Generator().manual_seed(1))
+        diffusion.repair(
+            deg.to(args.device),
+            mean_strength,
+            torch.Generator().manual_seed(1),
+            ddim.num_inference_steps,
+            ddim.eta,
+        )
 
     repair_one()
     repair_s = _timed(repair_one, args.device, max(1, args.repeat - 1))

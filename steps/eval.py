@@ -52,7 +52,7 @@ def _model_reason(inputs: dict[str, Path], used: str, info: dict | None) -> str:
     return f"repair status {info.get('status')!r}: {info.get('reason', 'no reason given')}"
 
 
-def render_views(gaussians, cameras, device: str = "cpu", backend: str = "auto") -> list[np.ndarray]:
+def render_views(gaussians, cameras, device: str, backend: str) -> list[np.ndarray]:
     """Render each camera on a white background; float32 [H,W,3] numpy images."""
     import torch
 

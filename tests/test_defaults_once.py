@@ -50,29 +50,10 @@ def _places(name: str, value) -> list[str]:
 
 # keyword defaults of library functions that restate a param's default (to remove: the caller passes it)
 RESTATED = {
-    "alpha_threshold": {"go_core/mesh/tsdf.py"},
-    "views": {"go_core/scene/loader.py", "go_core/scene/validate.py"},
-    "poses": {"go_core/scene/artifact.py"},
-    "all_but_one": {"go_core/coarse/hull.py"},
-    "p0": {"go_core/repair/noise.py", "go_core/repair/pairs.py"},
-    "decay": {"go_core/repair/noise.py", "go_core/repair/pairs.py"},
-    "noise_scale": {"go_core/repair/pairs.py"},
-    "rank": {"go_core/diffusion/lora.py"},
-    "alpha": {"go_core/diffusion/lora.py"},
-    "unet": {"go_core/diffusion/lora.py"},
-    "controlnet": {"go_core/diffusion/lora.py"},
-    "text_encoder": {"go_core/diffusion/lora.py"},
-    "precision": {"go_core/diffusion/models.py"},
-    "keep": {"go_core/repair/arcs.py"},
-    "num_inference_steps": {"go_core/diffusion/sampler.py"},
-    "eta": {"go_core/diffusion/sampler.py"},
-    "guidance_scale": {"go_core/diffusion/sampler.py"},
-    "backend": {
-        "go_core/poses/refine.py",
-        "go_core/render/api.py",
-        "go_core/repair/pairs.py",
-        "steps/eval.py",
-    },
+    "views": {"go_core/scene/loader.py", "go_core/scene/validate.py"},  # 0: the scene's own split
+    "poses": {"go_core/scene/artifact.py"},  # Ingest(): a record of how the scene step ingested
+    "guidance_scale": {"go_core/diffusion/sampler.py"},  # the tune step builds RepairDiffusion without one
+    "backend": {"go_core/poses/refine.py", "go_core/render/api.py"},  # "auto": the renderer's own choice
 }
 
 # same name and value, another meaning: a docstring example, the synthetic test scenes' SH degree

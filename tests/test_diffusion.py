@@ -94,16 +94,16 @@ def test_frame_pad_and_crop_roundtrip():
 def test_repair_runs_floor_50t_ddim_steps(weights):
     m = load_repair_models(WeightPaths.resolve(weights, env={}))
     d = RepairDiffusion(m)
-    assert d.steps_for(0.5) == 25 and d.steps_for(0.019) == 1 and d.steps_for(0.999) == 49
+    assert d.steps_for(0.5, 50) == 25 and d.steps_for(0.019, 50) == 1 and d.steps_for(0.999, 50) == 49
     calls = []
     orig = d.predict_noise
     d.predict_noise = lambda *a, **k: calls.append(int(a[1])) or orig(*a, **k)
     render = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(0))
-    out = d.repair(render, 0.3, torch.Generator().manual_seed(1))
+    out = d.repair(render, 0.3, torch.Generator().manual_seed(1), 50, 1.0)
     assert out.steps == math.floor(50 * 0.3) == len(calls)
     assert out.timestep == calls[0] == 281 and calls[-1] == 1  # DDIM timesteps 281, 261, ..., 1
     assert out.images.shape == render.shape and 0.0 <= out.images.min() and out.images.max() <= 1.0
-    again = d.repair(render, 0.3, torch.Generator().manual_seed(1))
+    again = d.repair(render, 0.3, torch.Generator().manual_seed(1), 50, 1.0)
     assert torch.equal(out.images, again.images)  # deterministic for a seed
 
 

@@ -45,7 +45,7 @@ def test_hull_of_sphere_from_three_axis_views_is_the_tricylinder(r, offset):
     away (200 r) so the cones are nearly cylinders; scenes with huge or tiny coordinates work the same."""
     cams = axis_cameras(200.0 * r, r, offset=offset)
     masks = [sphere_mask(c, np.asarray(offset, float), r) for c in cams]
-    res = visual_hull(cams, masks, num_points=5000, seed=0)
+    res = visual_hull(cams, masks, all_but_one=False, num_points=5000, seed=0)
     analytic = 8.0 * (2.0 - np.sqrt(2.0)) * r**3
     assert res.volume == pytest.approx(analytic, rel=0.05)
     assert len(res.points) == 5000
@@ -60,7 +60,7 @@ def test_hull_of_sphere_from_three_axis_views_is_the_tricylinder(r, offset):
 def test_all_but_one_view_keeps_a_larger_region():
     cams = axis_cameras(200.0, 1.0)
     masks = [sphere_mask(c, np.zeros(3), 1.0) for c in cams]
-    full = visual_hull(cams, masks, num_points=2000, seed=1)
+    full = visual_hull(cams, masks, all_but_one=False, num_points=2000, seed=1)
     loose = visual_hull(cams, masks, num_points=2000, seed=1, all_but_one=True)
     assert loose.min_views == 2 and full.min_views == 3
     assert loose.volume > 1.2 * full.volume
@@ -73,9 +73,9 @@ def test_empty_hull_raises_a_clear_error():
     masks[2] = np.zeros_like(masks[2])
     masks[2][:10, :10] = 1.0
     with pytest.raises(EmptyHullError, match="pose is probably wrong"):
-        visual_hull(cams, masks, num_points=100)
+        visual_hull(cams, masks, all_but_one=False, num_points=100)
     with pytest.raises(EmptyHullError):
-        visual_hull(cams, [np.zeros_like(m) for m in masks], num_points=100)
+        visual_hull(cams, [np.zeros_like(m) for m in masks], all_but_one=False, num_points=100)
 
 
 def test_empty_hull_names_the_camera_that_looks_away():
@@ -97,7 +97,7 @@ def test_empty_hull_names_the_camera_that_looks_away():
         "c1", away.center, away.center + (away.center - np.zeros(3)), np.array([0, 0, 1.0]), away.K, 128, 128
     )
     with pytest.raises(EmptyHullError, match="mask cone misses .* camera 'c1' the region"):
-        visual_hull(cams, masks, num_points=100)
+        visual_hull(cams, masks, all_but_one=False, num_points=100)
 
 
 def test_colours_come_from_the_views_that_see_the_point_and_gaussians_follow():
@@ -105,7 +105,7 @@ def test_colours_come_from_the_views_that_see_the_point_and_gaussians_follow():
     masks = [sphere_mask(c, np.zeros(3), 1.0, ss=2) for c in cams]
     colours = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)]
     images = [np.broadcast_to(np.asarray(c, np.float32), (64, 64, 3)).copy() for c in colours]
-    res = visual_hull(cams, masks, images, num_points=500, seed=0)
+    res = visual_hull(cams, masks, images, all_but_one=False, num_points=500, seed=0)
     assert np.allclose(res.colors, 1.0 / 3.0, atol=1e-5)  # every hull point is seen by all three views
     g = points_to_gaussians(res.points, res.colors, opacity=0.1)
     assert len(g) == 500

@@ -17,6 +17,8 @@ from go_core.diffusion.models import WeightPaths, load_repair_models
 from go_core.diffusion.sampler import RepairDiffusion
 from tests._tiny_repair import tiny_weights
 
+ALL_PARTS = {"unet": True, "controlnet": True, "text_encoder": True}  # LoRA on every part (the paper's)
+
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory):
@@ -45,7 +47,7 @@ def _pair():
 def test_lora_trains_only_lora_and_keeps_base_bit_identical(weights):
     m = load_repair_models(WeightPaths.resolve(weights, env={}))
     before = _base_state(m)
-    spec = LoraSpec(rank=8, alpha=8)
+    spec = LoraSpec(rank=8, alpha=8, **ALL_PARTS)
     counts = add_lora(m, spec)
     assert set(counts) == {"unet", "controlnet", "text_encoder"} and all(n > 0 for n in counts.values())
     trainable = [
@@ -76,7 +78,7 @@ def test_lora_trains_only_lora_and_keeps_base_bit_identical(weights):
 
 def test_tuning_loss_falls_on_tiny_overfit_case(weights):
     m = load_repair_models(WeightPaths.resolve(weights, env={}))
-    add_lora(m, LoraSpec(rank=8, alpha=8))
+    add_lora(m, LoraSpec(rank=8, alpha=8, **ALL_PARTS))
     d = RepairDiffusion(m)
     deg, clean = _pair()
     opt = torch.optim.AdamW(lora_parameters(m), lr=1e-2)
@@ -91,7 +93,7 @@ def test_tuning_loss_falls_on_tiny_overfit_case(weights):
 
 
 def test_lora_save_load_roundtrip_reproduces_outputs(weights, tmp_path):
-    spec = LoraSpec(rank=4, alpha=8)
+    spec = LoraSpec(rank=4, alpha=8, **ALL_PARTS)
     m = load_repair_models(WeightPaths.resolve(weights, env={}))
     add_lora(m, spec)
     with torch.no_grad():
@@ -132,7 +134,7 @@ def test_half_precision_lora_step_on_cuda(weights, precision):
 
     dtype, autocast = precision_dtypes("cuda", precision)
     m = load_repair_models(WeightPaths.resolve(weights, env={}), device="cuda", dtype=dtype)
-    add_lora(m, LoraSpec(rank=4, alpha=4))
+    add_lora(m, LoraSpec(rank=4, alpha=4, **ALL_PARTS))
     for module in m.modules().values():
         module.to("cuda")
     assert next(m.unet.parameters()).dtype == dtype
@@ -144,5 +146,5 @@ def test_half_precision_lora_step_on_cuda(weights, precision):
     loss.backward()
     opt.step()
     assert torch.isfinite(loss)
-    out = d.repair(deg.cuda(), 0.3, torch.Generator().manual_seed(1))
+    out = d.repair(deg.cuda(), 0.3, torch.Generator().manual_seed(1), 50, 1.0)
     assert out.images.shape == (1, 3, 64, 64) and torch.isfinite(out.images).all()

@@ -167,15 +167,6 @@ def test_readme_says_which_tests_skip_on_a_fresh_clone():
     assert "shared data" in text and "skip" in text and "fresh clone" in text
 
 
-def test_docs_name_only_result_files_that_exist():
-    missing = []
-    for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
-        for ref in re.findall(r"benchmarks/results/[A-Za-z0-9_./-]+\.(?:json|md)", doc.read_text()):
-            if not (REPO / ref).exists():
-                missing.append(f"{doc.name}: {ref}")
-    assert not missing
-
-
 def test_export_formats_param():
     from go_pipeline.steps.params import ExportParams
 

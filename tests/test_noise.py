@@ -74,9 +74,9 @@ def test_pair_schedule_is_algorithm_1():
     early, late = kinds[:100].count("noise"), kinds[-500:].count("noise")
     assert early > 65 and late < 60  # noise pairs give way to leave-one-out pairs (p = 0.995^k)
     # replaying from a saved state gives the same draws
-    s2 = PairSchedule()
+    s2 = PairSchedule(p0=0.5, decay=0.995)  # the saved state replaces p
     s2.load_state(s.state())
     r1, r2 = np.random.default_rng(5), np.random.default_rng(5)
     assert [s.draw(r1) for _ in range(50)] == [s2.draw(r2) for _ in range(50)]
-    only_noise = PairSchedule(has_loo_pairs=False)
+    only_noise = PairSchedule(p0=1.0, decay=0.995, has_loo_pairs=False)
     assert all(only_noise.draw(rng) == "noise" for _ in range(100))

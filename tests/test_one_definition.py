@@ -1,5 +1,5 @@
 """One definition for each operation that used to be written several times (uint8 rounding, compositing on
-white, thumbnails, quaternion → rotation), and the one rounding rule."""
+white, thumbnails, quaternion → rotation, ray–box, silhouette coverage), and the one rounding rule."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def _definitions(name: str) -> list[str]:
 
 
 def test_each_operation_is_defined_once():
-    for name in ("to_uint8", "composite", "thumbnail", "quat_to_rotmat"):
+    for name in ("to_uint8", "composite", "thumbnail", "quat_to_rotmat", "ray_box", "ray_coverage"):
         assert len(_definitions(name)) == 1, (name, _definitions(name))
     assert _definitions("_thumb") == [] and _definitions("thumb") == []
 

@@ -117,3 +117,26 @@ def test_a_turn_prior_holds_true_cameras_and_still_corrects_planted_turns(scene)
     after = _reprojection_px(res.cameras, truth, similarity=True).mean()
     assert after < 0.5 * before, (before, after)
     assert min(res.coverage_after) > min(res.coverage_before) + 0.05
+
+
+def test_the_alignment_loss_and_the_pose_check_share_one_coverage(scene):
+    """One definition (go_core.poses.coverage): with sharp masks the alignment's differentiable coverage is
+    the pose check's, taken over every mask pixel where the check draws from the mask eroded by 1 px (rays
+    through the rim graze the hull): never higher, lower by a few % (measured, view 2 turned 0 / 4 / 8°:
+    at most 0.011 / 0.037 / 0.079), the same worst view."""
+    import torch
+
+    from go_core.poses.silhouette_align import _Level, coverage
+    from go_core.poses.verify import MIN_COVERAGE, mask_coverage
+
+    truth, masks = scene
+    for degrees in (4.0, 8.0):
+        cams = list(truth)
+        cams[2] = turned(truth[2], degrees, np.random.default_rng(0))
+        check = np.array(mask_coverage(cams, masks))
+        box = tuple(torch.as_tensor(b) for b in hull_bounds(cams, masks, min_views=len(cams)))
+        viewmats = torch.stack([c.viewmat_tensor(dtype=torch.float64) for c in cams])
+        loss = np.array([float(c) for c in coverage(cams, viewmats, _Level(cams, masks, 64, 0.0), box, 192)])
+        assert np.all(loss <= check + 0.005) and np.all(check - loss < 0.1), (check, loss)
+        assert check.argmin() == loss.argmin() == 2
+    assert check.min() < MIN_COVERAGE  # 8°: the check flags the turned view

@@ -183,7 +183,7 @@ def visual_hull(
     images: list[np.ndarray] | None = None,
     *,
     num_points: int = 20_000,
-    all_but_one: bool = False,
+    all_but_one: bool,
     threshold: float = 0.5,
     seed: int = 0,
     batch: int = 200_000,

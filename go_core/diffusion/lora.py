@@ -25,11 +25,11 @@ PARTS = ("unet", "controlnet", "text_encoder")
 class LoraSpec:
     """Rank/alpha and which parts of the model get LoRA (paper: rank 64 on all three)."""
 
-    rank: int = 64
-    alpha: float = 64.0
-    unet: bool = True
-    controlnet: bool = True
-    text_encoder: bool = True
+    rank: int
+    alpha: float
+    unet: bool
+    controlnet: bool
+    text_encoder: bool
 
     def parts(self) -> list[str]:
         return [p for p in PARTS if getattr(self, p)]

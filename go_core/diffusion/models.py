@@ -110,7 +110,7 @@ class WeightPaths:
         }
 
 
-def precision_dtypes(device: str, precision: str = "auto") -> tuple[torch.dtype, torch.dtype | None]:
+def precision_dtypes(device: str, precision: str) -> tuple[torch.dtype, torch.dtype | None]:
     """(base weight dtype, autocast dtype) for a device and a precision name.
 
     CPU: always float32 (no autocast). CUDA: "auto"/"bf16" → bfloat16 weights and autocast, "fp16" → float16,

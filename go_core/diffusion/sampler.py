@@ -145,7 +145,7 @@ class RepairDiffusion:
         return 0.5 * F.mse_loss(z0, target, reduction="sum") / z0.shape[0], t
 
     # Repair ----------------------------------------------------------------------------------------------
-    def steps_for(self, t_frac: float, num_inference_steps: int = 50) -> int:
+    def steps_for(self, t_frac: float, num_inference_steps: int) -> int:
         """⌊num_inference_steps · t/T⌋ DDIM steps, at least one."""
         return max(1, min(num_inference_steps, math.floor(num_inference_steps * t_frac)))
 
@@ -164,8 +164,8 @@ class RepairDiffusion:
         render: torch.Tensor,
         t_frac: float,
         generator: torch.Generator,
-        num_inference_steps: int = 50,
-        eta: float = 1.0,
+        num_inference_steps: int,
+        eta: float,
     ) -> RepairResult:
         """SDEdit: encode the render, noise it to level t ≈ t_frac·T, denoise with DDIM (ControlNet on the
         render) for ⌊50·t/T⌋ steps and decode. ``eta``: DDIM stochasticity (1.0 as in the authors' code)."""

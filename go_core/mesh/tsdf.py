@@ -127,7 +127,7 @@ def fuse_views(
     grid: VoxelGrid,
     views: list[View],
     truncation: float,
-    alpha_threshold: float = 0.5,
+    alpha_threshold: float,
     active: np.ndarray | None = None,
     fill: np.ndarray | None = None,
     chunk: int = 1 << 17,
@@ -162,7 +162,7 @@ def fuse_views(
 
 
 def fuse_narrow_band(
-    grid: VoxelGrid, views: list[View], truncation: float, alpha_threshold: float = 0.5, factor: int = 4
+    grid: VoxelGrid, views: list[View], truncation: float, alpha_threshold: float, factor: int = 4
 ) -> Tsdf:
     """``fuse_views`` on ``grid`` restricted to a band around the surface found first on a grid ``factor``
     times coarser (truncation there: at least 1.5 of its voxels): fine voxels where the interpolated coarse

@@ -31,7 +31,7 @@ pre-alignment, not a calibration: the aligned cameras' coverage matches the true
 slack shows from the true cameras too: coverage is already ~0.999 there and Adam's normalised steps wander
 along the flat objective, moving the dev scenes' true cameras by 2-18 px (the flat plate most). A prior on
 each camera's turn (``rotation_sigma_deg``, off by default) holds them (1°: 0.5-5 px), at the price of
-stopping 5° starts nearer where they began (docs/coarse.md).
+stopping 5° starts nearer where they began (benchmarks/results/pose_refine_dev.md).
 ~50 CPU s at 256 px, one thread (benchmarks/pose_refine_dev.py, docs/coarse.md).
 """
 
@@ -45,7 +45,7 @@ import torch
 import torch.nn.functional as F
 
 from go_core.camera import Camera
-from go_core.coarse.hull import ray_box
+from go_core.poses.coverage import ray_coverage
 from go_core.poses.refine import PoseCorrection, mean_camera_distance
 
 PRIOR_WEIGHT = 1e-3  # the cost of a move by one sigma (centre or turn), in shares of a mask left uncovered
@@ -134,27 +134,22 @@ def coverage(
     box: tuple[torch.Tensor, torch.Tensor],
     samples: int,
 ) -> list[torch.Tensor]:
-    """Per view, the weighted mean coverage of its mask by the hull of the other views (1 = coherent)."""
+    """Per view, the weighted mean coverage (``go_core.poses.coverage``) of its mask by the hull of the
+    other views' blurred masks (1 = coherent), differentiable in ``viewmats``."""
     Ks = [torch.as_tensor(c.K, dtype=viewmats.dtype) for c in cameras]
-    frac = (torch.arange(samples, dtype=viewmats.dtype) + 0.5) / samples
     out = []
     for j, cam in enumerate(cameras):
         uv, weight = level.pixels[j]
         origin, dirs = _rays(viewmats[j], cam.K, uv.to(viewmats.dtype))
-        with torch.no_grad():
-            near, far = (
-                torch.from_numpy(d) for d in ray_box(*(v.detach().numpy() for v in (origin, dirs, *box)))
-            )
-            hit = far > near
-            t = near[:, None] + frac[None] * (far - near).clamp_min(0.0)[:, None]  # [R,S]
-        x = origin + t[..., None] * dirs[:, None, :]  # [R,S,3]
-        occupancy = torch.ones(x.shape[:2], dtype=torch.float32)
-        for i, other in enumerate(cameras):
-            if i != j:
-                occupancy = occupancy * _sample(
-                    level.masks[i], viewmats[i], Ks[i], other, x.reshape(-1, 3)
-                ).view(x.shape[:2])
-        covered = occupancy.amax(1) * hit
+
+        def occupancy(x: torch.Tensor, j: int = j) -> torch.Tensor:
+            product = torch.ones(len(x), dtype=torch.float32)
+            for i, other in enumerate(cameras):
+                if i != j:
+                    product = product * _sample(level.masks[i], viewmats[i], Ks[i], other, x)
+            return product
+
+        covered = ray_coverage(origin, dirs, box, samples, occupancy)
         out.append((covered * weight).sum() / weight.sum().clamp_min(1e-9))
     return out
 

@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from go_core.camera import Camera
-from go_core.coarse.hull import hull_bounds, inside_masks, ray_box
+from go_core.coarse.hull import hull_bounds
 from go_core.errors import EmptyHullError
 from go_core.seeding import numpy_rng
 
@@ -54,15 +54,19 @@ def mask_coverage(
     erode_px: int = 1,
     seed: int = 0,
 ) -> list[float]:
-    """Per view, the fraction of its mask pixels whose ray meets the visual hull of the other views.
+    """Per view, the fraction of its mask pixels whose ray meets the visual hull of the other views
+    (``go_core.poses.coverage``, with hard masks: a mask value > ``threshold`` is inside).
 
     ``max_pixels`` mask pixels per view are drawn (seeded) after eroding the mask by ``erode_px`` (rays
     through the very rim can slip between samples of a thin hull). Raises ``EmptyHullError`` when the
     masks' frusta have no common point at all."""
     import cv2
+    import torch
+
+    from go_core.poses.coverage import hard_occupancy, ray_coverage
 
     masks = [np.asarray(m, np.float32) for m in masks]
-    lo, hi = hull_bounds(cameras, masks, min_views=len(cameras), threshold=threshold)
+    box = hull_bounds(cameras, masks, min_views=len(cameras), threshold=threshold)
     rng = numpy_rng(seed)
     coverage = []
     for i, (cam, mask) in enumerate(zip(cameras, masks, strict=True)):
@@ -78,19 +82,17 @@ def mask_coverage(
         pix = np.stack([cols[pick] + 0.5, rows[pick] + 0.5, np.ones(pick.size)], 1)
         R = cam.world_to_cam[:3, :3]
         dirs = pix @ np.linalg.inv(cam.K).T @ R  # camera rays rotated to world: (R^T d)^T = d^T R
-        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        t_in, t_out = ray_box(cam.center, dirs, lo, hi)
-        hit = np.zeros(pick.size, bool)
+        dirs = torch.from_numpy(dirs / np.linalg.norm(dirs, axis=1, keepdims=True))
         others = [j for j in range(len(cameras)) if j != i]
-        s = (np.arange(samples_per_ray) + 0.5) / samples_per_ray
-        rays = np.nonzero(t_out > t_in)[0]
-        chunk = max(1, 400_000 // samples_per_ray)
-        for start in range(0, rays.size, chunk):
-            k = rays[start : start + chunk]
-            t = t_in[k, None] + s[None] * (t_out[k] - t_in[k])[:, None]  # [R,S]
-            pts = (cam.center + t[..., None] * dirs[k, None, :]).reshape(-1, 3)
-            inside = inside_masks(pts, [cameras[j] for j in others], [masks[j] for j in others], threshold)
-            hit[k] = inside.all(0).reshape(len(k), samples_per_ray).any(1)
+        occupancy = hard_occupancy([cameras[j] for j in others], [masks[j] for j in others], threshold)
+        center = torch.from_numpy(cam.center)
+        chunk = max(1, 400_000 // samples_per_ray)  # rays per call: bounds the points held at once
+        hit = torch.cat(
+            [
+                ray_coverage(center, dirs[k : k + chunk], box, samples_per_ray, occupancy)
+                for k in range(0, len(dirs), chunk)
+            ]
+        )
         coverage.append(float(hit.mean()))
     return coverage
 

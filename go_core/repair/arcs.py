@@ -34,7 +34,7 @@ class RepairArcs:
     keep: float  # fraction of each arc that is sampled (0.8 in the paper), centred
 
     @staticmethod
-    def from_cameras(train_cameras: list[Camera], keep: float = 0.8) -> RepairArcs:
+    def from_cameras(train_cameras: list[Camera], keep: float) -> RepairArcs:
         if len(train_cameras) < 2:
             raise ValueError("repair arcs need at least 2 training cameras")
         if not 0.0 < keep <= 1.0:

@@ -85,7 +85,7 @@ class PairSchedule:
     """Algorithm 1: a noise pair with probability p_manual (starting at ``p0``, multiplied by ``decay`` each
     time a noise pair is used), else a cached leave-one-out pair. State is two numbers, so it checkpoints."""
 
-    def __init__(self, p0: float = 1.0, decay: float = 0.995, has_loo_pairs: bool = True) -> None:
+    def __init__(self, p0: float, decay: float, has_loo_pairs: bool = True) -> None:
         self.p = float(p0)
         self.decay = float(decay)
         self.has_loo_pairs = has_loo_pairs

@@ -46,8 +46,8 @@ def noise_pair(
     view,
     index: int,
     generator: torch.Generator,
-    backend: str = "auto",
-    scale: float = 1.0,
+    backend: str,
+    scale: float,
 ) -> Pair:
     """The coarse model with 3D noise rendered at reference ``view`` (white background) vs. its photo."""
     noisy = add_noise(coarse, stats, generator, scale)
@@ -89,10 +89,10 @@ class PairSource:
         stats: NoiseStats,
         views: list,
         loo: LooPairs | None,
-        p0: float = 1.0,
-        decay: float = 0.995,
-        backend: str = "auto",
-        noise_scale: float = 1.0,
+        p0: float,
+        decay: float,
+        backend: str,
+        noise_scale: float,
     ) -> None:
         self.coarse = coarse.detach()
         self.stats = stats
