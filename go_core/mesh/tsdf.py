@@ -1,12 +1,14 @@
 """Truncated signed-distance fusion of rendered depth + alpha maps on a regular voxel grid (vectorised torch).
 
-Per view and voxel centre x (camera depth z, nearest pixel p): where alpha(p) ≥ ``alpha_threshold`` the
-pixel saw a surface at depth d(p) and the voxel observes s = (d(p) − z) / truncation, kept when s ≥ −1
-(voxels far behind the surface are unobserved) and clamped to ≤ 1; where alpha(p) is below the threshold
-the ray is empty and the voxel observes s = +1 (space carving: what the silhouette excludes is outside).
-The field is the running mean of the observations. Voxels nobody observed are behind every surface seen,
-i.e. inside, and count as −1, so marching cubes finds no second surface within the object. Colours are
-averaged over the observations within the band (|s| < 1) of surface pixels.
+Per view and voxel centre x (camera depth z, nearest pixel p): where alpha(p) ≥ ``alpha_threshold`` and
+the depth d(p) is finite the pixel saw a surface at d(p) and the voxel observes s = (d(p) − z) / truncation,
+kept when s ≥ −1 (voxels far behind the surface are unobserved) and clamped to ≤ 1; where alpha(p) ≤
+``carve_alpha`` the ray is empty and the voxel observes s = +1 (space carving: what the silhouette excludes
+is outside); pixels in between (a see-through model's translucent parts) observe nothing, so they neither
+place a surface nor carve one away. The field is the mean of the observations. Voxels nobody observed
+are behind every surface seen, i.e. inside, and count as −1, so marching cubes finds no second surface
+within the object. Colours are averaged over the observations within the band (|s| < 1) of surface
+pixels.
 
 Fusion walks the voxels in chunks through every view (``fuse_views``): the work is a few dozen elementwise
 operations per voxel and view, memory-bound when whole-grid temporaries are used (4.3M voxels: 2.0 s per
@@ -15,7 +17,7 @@ view on one loaded core), cache-resident in chunks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -96,7 +98,25 @@ class _PackedView:
         self.rgb = None if rgb is None else torch.as_tensor(rgb)
 
 
-def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], truncation: float, alpha_threshold: float):
+@dataclass(frozen=True)
+class FusionRule:
+    """What a pixel says (module docstring): ``truncation`` in world units, alpha ≥ ``alpha_threshold``
+    (with a finite depth): a surface; alpha ≤ ``carve_alpha``: empty; in between: nothing."""
+
+    truncation: float
+    alpha_threshold: float = 0.5
+    carve_alpha: float = 0.5
+
+    def __post_init__(self):
+        if self.truncation <= 0:
+            raise ValueError(f"the truncation must be positive, got {self.truncation}")
+        if not 0.0 <= self.carve_alpha <= self.alpha_threshold:
+            raise ValueError(
+                f"need 0 <= carve_alpha <= alpha_threshold, got {self.carve_alpha}, {self.alpha_threshold}"
+            )
+
+
+def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule):
     """Observation sums and counts, colour sums and counts for the voxel centres ``points`` [M,3]."""
     total = torch.zeros(len(points))
     count = torch.zeros(len(points))
@@ -110,9 +130,10 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], truncation: floa
         r = torch.floor(v.K[3] * y * inv + v.K[4])
         valid = (z > 1e-6) & (u >= 0) & (u < v.w) & (r >= 0) & (r < v.h)
         pix = (r * v.w + u).long().masked_fill_(~valid, 0)
-        surface = v.alpha[pix] >= alpha_threshold
-        s = torch.where(surface, (v.depth[pix] - z) / truncation, 1.0)
-        seen = valid & (s >= -1.0)
+        a, d = v.alpha[pix], v.depth[pix]
+        surface = (a >= rule.alpha_threshold) & torch.isfinite(d)
+        s = torch.where(surface, (d - z) / rule.truncation, 1.0)
+        seen = valid & (surface | (a <= rule.carve_alpha)) & (s >= -1.0)
         s = s.clamp_max(1.0)
         total += s.masked_fill_(~seen, 0.0)
         count += seen
@@ -126,8 +147,7 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], truncation: floa
 def fuse_views(
     grid: VoxelGrid,
     views: list[View],
-    truncation: float,
-    alpha_threshold: float = 0.5,
+    rule: FusionRule,
     active: np.ndarray | None = None,
     fill: np.ndarray | None = None,
     chunk: int = 1 << 17,
@@ -135,8 +155,6 @@ def fuse_views(
     """The TSDF of ``views`` on ``grid`` (rules in the module docstring), computed for the voxels that the
     boolean [X,Y,Z] ``active`` selects (all when None); the others take ``fill`` [X,Y,Z] (default −1).
     Voxels are processed in chunks of ``chunk`` through every view."""
-    if truncation <= 0:
-        raise ValueError(f"the truncation must be positive, got {truncation}")
     packed = [_PackedView(v) for v in views]
     ax = [a.float() for a in grid.axes()]
     nx, ny, nz = grid.shape
@@ -149,7 +167,7 @@ def fuse_views(
     for start in range(0, len(todo), chunk):
         idx = todo[start : start + chunk]
         points = torch.stack([ax[0][idx // (ny * nz)], ax[1][(idx // nz) % ny], ax[2][idx % nz]], dim=1)
-        total, count, cs, cc = _fuse_chunk(points, packed, float(truncation), float(alpha_threshold))
+        total, count, cs, cc = _fuse_chunk(points, packed, rule)
         field[idx] = torch.where(count > 0, total / count.clamp_min(1.0), -1.0)
         rgb_sum[idx], rgb_count[idx] = cs, cc
     shape = grid.shape
@@ -161,9 +179,7 @@ def fuse_views(
     )
 
 
-def fuse_narrow_band(
-    grid: VoxelGrid, views: list[View], truncation: float, alpha_threshold: float = 0.5, factor: int = 4
-) -> Tsdf:
+def fuse_narrow_band(grid: VoxelGrid, views: list[View], rule: FusionRule, factor: int = 4) -> Tsdf:
     """``fuse_views`` on ``grid`` restricted to a band around the surface found first on a grid ``factor``
     times coarser (truncation there: at least 1.5 of its voxels): fine voxels where the interpolated coarse
     field is within its truncation are fused, the others take its sign. Same surface wherever it lies within
@@ -171,14 +187,14 @@ def fuse_narrow_band(
     from scipy.ndimage import map_coordinates
 
     if factor <= 1:
-        return fuse_views(grid, views, truncation, alpha_threshold)
+        return fuse_views(grid, views, rule)
     coarse_grid = VoxelGrid(grid.origin, grid.voxel * factor, tuple(-(-n // factor) for n in grid.shape))
-    coarse_trunc = max(truncation, 1.5 * coarse_grid.voxel)
+    coarse_rule = replace(rule, truncation=max(rule.truncation, 1.5 * coarse_grid.voxel))
     bare = [View(v.camera, v.depth, v.alpha) for v in views]
-    coarse = fuse_views(coarse_grid, bare, coarse_trunc, alpha_threshold).field
+    coarse = fuse_views(coarse_grid, bare, coarse_rule).field
     coords = np.stack(
         np.meshgrid(*[np.arange(n, dtype=np.float32) / factor for n in grid.shape], indexing="ij")
     )
     upsampled = map_coordinates(coarse, coords.reshape(3, -1), order=1, mode="nearest").reshape(grid.shape)
     active = np.abs(upsampled) < 1.0
-    return fuse_views(grid, views, truncation, alpha_threshold, active=active, fill=np.sign(upsampled))
+    return fuse_views(grid, views, rule, active=active, fill=np.sign(upsampled))
