@@ -83,6 +83,26 @@ def test_translucent_pixels_carve_nothing():
     assert carved < 0.1 * 4 / 3 * np.pi * RADIUS**3
 
 
+def test_a_see_through_shell_keeps_its_interior_with_the_free_depth():
+    """Every other view sees through a translucent front: its (median) depth is the sphere's back surface,
+    its free depth (opacity reaches carve_alpha) the front. With the free depth the sphere is recovered
+    (every vertex within half a voxel); deciding by the pixel alone carves the interior away."""
+    cams, grid = _cameras(), VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 64)
+    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05)
+    with_free, without = [], []
+    for k, c in enumerate(cams):
+        front, alpha = sphere_depth(c, RADIUS)
+        free = np.where(alpha > 0, front, np.nan)
+        depth = np.where(alpha > 0, sphere_depth(c, RADIUS, back=True)[0] if k % 2 else front, np.nan)
+        with_free.append(View(c, depth, alpha, None, free))
+        without.append(View(c, depth, alpha))
+    field = fuse_narrow_band(grid, with_free, rule).field
+    kept = largest_component(marching_cubes(field, grid.origin, grid.voxel))
+    assert np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS).max() < 0.5 * grid.voxel
+    hollow = fuse_narrow_band(grid, without, rule).field
+    assert hollow[tuple(n // 2 for n in grid.shape)] > 0  # the centre is carved
+
+
 def test_nan_depth_is_no_surface():
     """A median-depth map is NaN where the opacity never reaches 1/2: such pixels place no surface (with
     alpha above carve_alpha they say nothing), so NaN never reaches the field."""

@@ -93,7 +93,8 @@ def _two_walls(front_opacity: float) -> list[torch.Tensor]:
     scales = torch.tensor([[5.0, 5.0, 1e-4]] * 2, dtype=torch.float64)
     opac = torch.tensor([front_opacity, 0.9], dtype=torch.float64)
     K = torch.tensor([[[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]]], dtype=torch.float64)
-    return [means, quats, scales, opac, torch.zeros(2, 3, dtype=torch.float64), torch.eye(4)[None], K]
+    view = torch.eye(4, dtype=torch.float64)[None]
+    return [means, quats, scales, opac, torch.zeros(2, 3, dtype=torch.float64), view, K]
 
 
 def test_median_depth_of_a_translucent_wall_is_the_surface_behind_it(cpu_ext):  # noqa: F811

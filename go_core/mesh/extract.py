@@ -18,9 +18,17 @@ from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_ban
 from go_core.mesh.views import fusion_cameras
 
 
-def render_maps(gaussians, cameras: list[Camera], backend: str, batch: int, depth: str = "expected"):
-    """Yield (camera, depth [H,W], alpha [H,W], straight rgb [H,W,3]) float32 numpy per camera; ``depth``
-    "expected" (alpha-weighted mean) or "median" (where the opacity reaches 1/2: NaN where it never does)."""
+def render_maps(
+    gaussians,
+    cameras: list[Camera],
+    backend: str,
+    batch: int,
+    depth: str = "expected",
+    free_level: float = 0.05,
+):
+    """Yield (camera, depth [H,W], alpha [H,W], straight rgb [H,W,3], free depth [H,W]) float32 numpy per
+    camera; ``depth`` "expected" (alpha-weighted mean) or "median" (where the opacity reaches 1/2), the free
+    depth where it reaches ``free_level`` (both NaN where it never does)."""
     import torch
 
     from go_core.render import render_gaussians
@@ -41,9 +49,10 @@ def render_maps(gaussians, cameras: list[Camera], backend: str, batch: int, dept
                 z = render_median_depth(g, viewmats, Ks, w, h, backend=backend).numpy()
             else:
                 z = out.depth[..., 0].cpu().numpy()
+            free = render_median_depth(g, viewmats, Ks, w, h, level=free_level, backend=backend).numpy()
             rgb = (out.rgb / out.alpha.clamp_min(1e-6)).clamp(0, 1).cpu().numpy()
             for i, cam in enumerate(chunk):
-                yield cam, z[i], alpha[i], rgb[i]
+                yield cam, z[i], alpha[i], rgb[i], free[i]
 
 
 def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
@@ -53,7 +62,9 @@ def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
 
 def fuse(gaussians, cameras: list[Camera], grid: VoxelGrid, settings: MeshSettings) -> Tsdf:
     """The TSDF of ``gaussians`` seen from ``cameras``."""
-    maps = render_maps(gaussians, cameras, settings.backend, settings.batch, settings.depth)
+    maps = render_maps(
+        gaussians, cameras, settings.backend, settings.batch, settings.depth, settings.carve_alpha
+    )
     return fuse_narrow_band(grid, [View(*m) for m in maps], fusion_rule(settings, grid.voxel))
 
 

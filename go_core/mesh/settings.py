@@ -17,7 +17,7 @@ class MeshSettings:
     truncation_voxels: float = setting(3.0, gt=0, doc="TSDF truncation in voxels (docs/geometry.md)")
     alpha_threshold: float = setting(0.5, gt=0, lt=1, doc="rendered alpha >= this (and a depth) is a surface")
     carve_alpha: float = setting(
-        0.05, ge=0, lt=1, doc="rendered alpha <= this is empty space; between it and alpha_threshold: unknown"
+        0.05, gt=0, lt=1, doc="a ray is empty space up to where its accumulated opacity reaches this"
     )
     depth: Literal["median", "expected"] = setting(
         "median", doc="fused depth: where the opacity reaches 1/2, or the alpha-weighted mean"

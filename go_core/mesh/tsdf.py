@@ -1,14 +1,20 @@
 """Truncated signed-distance fusion of rendered depth + alpha maps on a regular voxel grid (vectorised torch).
 
-Per view and voxel centre x (camera depth z, nearest pixel p): where alpha(p) ≥ ``alpha_threshold`` and
-the depth d(p) is finite the pixel saw a surface at d(p) and the voxel observes s = (d(p) − z) / truncation,
-kept when s ≥ −1 (voxels far behind the surface are unobserved) and clamped to ≤ 1; where alpha(p) ≤
-``carve_alpha`` the ray is empty and the voxel observes s = +1 (space carving: what the silhouette excludes
-is outside); pixels in between (a see-through model's translucent parts) observe nothing, so they neither
-place a surface nor carve one away. The field is the mean of the observations. Voxels nobody observed
-are behind every surface seen, i.e. inside, and count as −1, so marching cubes finds no second surface
-within the object. Colours are averaged over the observations within the band (|s| < 1) of surface
-pixels.
+Per view and voxel centre x (camera depth z, nearest pixel p), three facts about the ray through p:
+* where alpha(p) ≥ ``alpha_threshold`` and the depth d(p) is finite the pixel saw a surface at d(p);
+* the ray is empty up to its free depth f(p): the depth at which its accumulated opacity reaches
+  ``carve_alpha`` (+∞ where it never does, i.e. alpha(p) ≤ ``carve_alpha``: the whole ray is empty);
+* beyond f(p) the ray passed through something, so a voxel there is only observed near the surface.
+
+The voxel observes s = (d(p) − z) / truncation clamped to ≤ 1 (s = +1 without a surface) when z < f(p)
+(space carving), or when it lies within the truncation band |s| ≤ 1 of a surface; never when s < −1
+(far behind the surface). A see-through model's translucent front (opacity below one half, so the median
+depth lands on the back surface) thus carves nothing behind f(p): the object's interior, which a Gaussian
+shell leaves empty, is not declared free by the views that look through it. Without a free-depth map,
+f(p) = d(p) on surface pixels, +∞ where alpha ≤ ``carve_alpha`` and −∞ in between (a pixel's own alpha
+decides). The field is the mean of the observations. Voxels nobody observed are behind every surface
+seen, i.e. inside, and count as −1, so marching cubes finds no second surface within the object. Colours
+are averaged over the observations within the band (|s| < 1) of surface pixels.
 
 Fusion walks the voxels in chunks through every view (``fuse_views``): the work is a few dozen elementwise
 operations per voxel and view, memory-bound when whole-grid temporaries are used (4.3M voxels: 2.0 s per
@@ -63,12 +69,13 @@ class VoxelGrid:
 @dataclass
 class View:
     """One fused view: camera-z ``depth`` and coverage ``alpha`` [H,W], straight (not premultiplied)
-    colour ``rgb`` [H,W,3] or None."""
+    colour ``rgb`` [H,W,3] or None, and the free depth [H,W] (module docstring) or None."""
 
     camera: Camera
     depth: np.ndarray
     alpha: np.ndarray
     rgb: np.ndarray | None = None
+    free_depth: np.ndarray | None = None  # [H,W] where the opacity reaches carve_alpha (NaN: never)
 
 
 @dataclass
@@ -83,25 +90,10 @@ class Tsdf:
     colour_counts: np.ndarray
 
 
-class _PackedView:
-    """A view's projection constants and flattened maps as torch tensors."""
-
-    def __init__(self, view: View):
-        cam = view.camera
-        self.h, self.w = cam.height, cam.width
-        self.R = torch.as_tensor(cam.world_to_cam[:3, :3], dtype=torch.float32)
-        self.t = torch.as_tensor(cam.world_to_cam[:3, 3], dtype=torch.float32)
-        self.K = [float(x) for x in (cam.K[0, 0], cam.K[0, 1], cam.K[0, 2], cam.K[1, 1], cam.K[1, 2])]
-        self.alpha = torch.as_tensor(np.ascontiguousarray(view.alpha, np.float32)).reshape(-1)
-        self.depth = torch.as_tensor(np.ascontiguousarray(view.depth, np.float32)).reshape(-1)
-        rgb = None if view.rgb is None else np.ascontiguousarray(view.rgb, np.float32).reshape(-1, 3)
-        self.rgb = None if rgb is None else torch.as_tensor(rgb)
-
-
 @dataclass(frozen=True)
 class FusionRule:
     """What a pixel says (module docstring): ``truncation`` in world units, alpha ≥ ``alpha_threshold``
-    (with a finite depth): a surface; alpha ≤ ``carve_alpha``: empty; in between: nothing."""
+    (with a finite depth): a surface; the ray is empty up to where its opacity reaches ``carve_alpha``."""
 
     truncation: float
     alpha_threshold: float = 0.5
@@ -114,6 +106,28 @@ class FusionRule:
             raise ValueError(
                 f"need 0 <= carve_alpha <= alpha_threshold, got {self.carve_alpha}, {self.alpha_threshold}"
             )
+
+
+class _PackedView:
+    """A view's projection constants and flattened maps as torch tensors."""
+
+    def __init__(self, view: View, rule: FusionRule):
+        cam = view.camera
+        self.h, self.w = cam.height, cam.width
+        self.R = torch.as_tensor(cam.world_to_cam[:3, :3], dtype=torch.float32)
+        self.t = torch.as_tensor(cam.world_to_cam[:3, 3], dtype=torch.float32)
+        self.K = [float(x) for x in (cam.K[0, 0], cam.K[0, 1], cam.K[0, 2], cam.K[1, 1], cam.K[1, 2])]
+        self.alpha = torch.as_tensor(np.ascontiguousarray(view.alpha, np.float32)).reshape(-1)
+        self.depth = torch.as_tensor(np.ascontiguousarray(view.depth, np.float32)).reshape(-1)
+        rgb = None if view.rgb is None else np.ascontiguousarray(view.rgb, np.float32).reshape(-1, 3)
+        self.rgb = None if rgb is None else torch.as_tensor(rgb)
+        if view.free_depth is not None:
+            free = torch.as_tensor(np.ascontiguousarray(view.free_depth, np.float32)).reshape(-1)
+            self.free = torch.nan_to_num(free, nan=float("inf"))
+        else:
+            surface = (self.alpha >= rule.alpha_threshold) & torch.isfinite(self.depth)
+            empty = torch.where(self.alpha <= rule.carve_alpha, float("inf"), float("-inf"))
+            self.free = torch.where(surface, self.depth, empty)
 
 
 def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule):
@@ -130,10 +144,10 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule
         r = torch.floor(v.K[3] * y * inv + v.K[4])
         valid = (z > 1e-6) & (u >= 0) & (u < v.w) & (r >= 0) & (r < v.h)
         pix = (r * v.w + u).long().masked_fill_(~valid, 0)
-        a, d = v.alpha[pix], v.depth[pix]
-        surface = (a >= rule.alpha_threshold) & torch.isfinite(d)
+        d = v.depth[pix]
+        surface = (v.alpha[pix] >= rule.alpha_threshold) & torch.isfinite(d)
         s = torch.where(surface, (d - z) / rule.truncation, 1.0)
-        seen = valid & (surface | (a <= rule.carve_alpha)) & (s >= -1.0)
+        seen = valid & (s >= -1.0) & ((z < v.free[pix]) | (surface & (s <= 1.0)))
         s = s.clamp_max(1.0)
         total += s.masked_fill_(~seen, 0.0)
         count += seen
@@ -155,7 +169,7 @@ def fuse_views(
     """The TSDF of ``views`` on ``grid`` (rules in the module docstring), computed for the voxels that the
     boolean [X,Y,Z] ``active`` selects (all when None); the others take ``fill`` [X,Y,Z] (default −1).
     Voxels are processed in chunks of ``chunk`` through every view."""
-    packed = [_PackedView(v) for v in views]
+    packed = [_PackedView(v, rule) for v in views]
     ax = [a.float() for a in grid.axes()]
     nx, ny, nz = grid.shape
     n = nx * ny * nz
@@ -190,7 +204,7 @@ def fuse_narrow_band(grid: VoxelGrid, views: list[View], rule: FusionRule, facto
         return fuse_views(grid, views, rule)
     coarse_grid = VoxelGrid(grid.origin, grid.voxel * factor, tuple(-(-n // factor) for n in grid.shape))
     coarse_rule = replace(rule, truncation=max(rule.truncation, 1.5 * coarse_grid.voxel))
-    bare = [View(v.camera, v.depth, v.alpha) for v in views]
+    bare = [View(v.camera, v.depth, v.alpha, None, v.free_depth) for v in views]
     coarse = fuse_views(coarse_grid, bare, coarse_rule).field
     coords = np.stack(
         np.meshgrid(*[np.arange(n, dtype=np.float32) / factor for n in grid.shape], indexing="ij")
