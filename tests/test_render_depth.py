@@ -77,9 +77,9 @@ def test_cpu_median_depth_matches_float64_reference(cpu_ext):  # noqa: F811
     W, H = 70, 45
     scene = random_scene(600, W, H, cams=2, seed=14)
     p = _projected("reference", W, H, scene, torch.float64)
-    ref = median_depth_reference(p.means2d, p.conics, p.opacities, p.depths, p.radii, W, H)
+    ref = median_depth_reference(p, W, H)
     q = _projected("cpu", W, H, scene, torch.float32)
-    cpu = median_depth_cpu(q.means2d, q.conics, q.opacities, q.depths, q.radii, W, H).double()
+    cpu = median_depth_cpu(q, W, H).double()
     assert 0.05 < torch.isnan(ref).float().mean() < 0.95  # both kinds of pixel are tested
     same = (torch.isnan(ref) & torch.isnan(cpu)) | ((cpu - ref).abs() <= 1e-5 * ref.abs())
     assert same.float().mean() >= 0.999

@@ -192,4 +192,4 @@ def render_median_depth(
 
             p = project_cpu(*args, **options)
             median = median_depth_cpu
-        return median(p.means2d, p.conics, p.opacities, p.depths, p.radii, width, height, level)
+        return median(p, width, height, level)

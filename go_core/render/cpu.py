@@ -151,19 +151,13 @@ def rasterize_cpu_with_depth(
     )
 
 
-def median_depth_cpu(
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    depths: torch.Tensor,
-    radii: torch.Tensor,
-    width: int,
-    height: int,
-    level: float = 0.5,
-) -> torch.Tensor:
+def median_depth_cpu(proj: Projected, width: int, height: int, level: float = 0.5) -> torch.Tensor:
     """Compiled ``go_core.render.reference.median_depth_reference`` ([C,H,W] float32, NaN where the opacity
     never reaches ``level``; no gradient): the forward compositing stopped at transmittance 1 − level, and
     the depth of the Gaussian each pixel stopped at."""
+    means2d, conics, opacities, depths, radii = (
+        proj.means2d, proj.conics, proj.opacities, proj.depths, proj.radii
+    )  # fmt: skip
     _check_cpu(means2d)
     ext = load_extension()
     C, N = means2d.shape[:2]

@@ -21,15 +21,11 @@ CHUNK_ELEMS = 1 << 21  # Gaussian-pixel pairs evaluated per chunk
 
 
 def _pixel_alphas(
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    gidx: torch.Tensor,
-    gvalid: torch.Tensor,
-    px0: torch.Tensor,
-    py: torch.Tensor,
+    means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, units: tuple
 ) -> torch.Tensor:
-    """[U,16,L] alpha of each listed Gaussian at each pixel of U rows of 16 pixels (0 where unused)."""
+    """[U,16,L] alpha of each listed Gaussian at each pixel of U rows of 16 pixels (0 where unused);
+    ``units`` = (gidx, gvalid, px0, py) as for ``_composite_units``."""
+    gidx, gvalid, px0, py = units
     dt = means2d.dtype
     m = means2d[gidx]  # [U,L,2]
     con = conics[gidx]
@@ -62,7 +58,7 @@ def _composite_units(
     gidx/gvalid [U,L] (Gaussian index, real entry), px0 [U] first pixel column, py [U] pixel row.
     Returns [U,16,F+1]: accumulated features then alpha.
     """
-    alpha = _pixel_alphas(means2d, conics, opacities, gidx, gvalid, px0, py)
+    alpha = _pixel_alphas(means2d, conics, opacities, (gidx, gvalid, px0, py))
     f = feats[gidx]  # [U,L,F]
     trans_after = torch.cumprod(1.0 - alpha, dim=-1)
     keep = (trans_after > T_STOP).detach()
@@ -154,18 +150,13 @@ def rasterize_reference(
     return torch.stack(feats_out), torch.stack(alphas_out)
 
 
-def median_depth_reference(
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    depths: torch.Tensor,
-    radii: torch.Tensor,
-    width: int,
-    height: int,
-    level: float = 0.5,
-) -> torch.Tensor:
-    """[C,H,W] median depth (no gradient): per pixel the depth of the first Gaussian, front to back in its
-    tile's list, after which the accumulated opacity 1 − T reaches ``level``; NaN where it never does."""
+def median_depth_reference(proj, width: int, height: int, level: float = 0.5) -> torch.Tensor:
+    """[C,H,W] median depth of projected Gaussians ``proj`` (go_core.render.projection.Projected), no
+    gradient: per pixel the depth of the first Gaussian, front to back in its tile's list, after which the
+    accumulated opacity 1 − T reaches ``level``; NaN where it never does."""
+    means2d, conics, opacities, depths, radii = (
+        proj.means2d, proj.conics, proj.opacities, proj.depths, proj.radii
+    )  # fmt: skip
     C = means2d.shape[0]
     out = torch.full((C, height, width), float("nan"), dtype=means2d.dtype)
     rows = torch.arange(TILE, dtype=torch.int64)
@@ -179,15 +170,8 @@ def median_depth_reference(
                 ids = bins.gauss_ids[offsets[t] : offsets[t + 1]]
                 gidx = ids[None, :].expand(TILE, -1)
                 x0, y0 = (t % bins.tiles_x) * TILE, (t // bins.tiles_x) * TILE
-                alpha = _pixel_alphas(
-                    means2d[ci],
-                    conics[ci],
-                    opacities[ci],
-                    gidx,
-                    torch.ones_like(gidx, dtype=torch.bool),
-                    torch.full((TILE,), x0),
-                    y0 + rows,
-                )  # [16 rows, 16 columns, L]
+                units = (gidx, torch.ones_like(gidx, dtype=torch.bool), torch.full((TILE,), x0), y0 + rows)
+                alpha = _pixel_alphas(means2d[ci], conics[ci], opacities[ci], units)  # [16 rows, 16 cols, L]
                 crossed = torch.cumprod(1.0 - alpha, dim=-1) <= 1.0 - level
                 first = torch.argmax(crossed.to(torch.int8), dim=-1)
                 tile = torch.where(crossed.any(-1), depths[ci][ids][first], float("nan"))
