@@ -72,9 +72,10 @@ def _see_through_sphere_views(rule: FusionRule, resolution: int = 64):
 
 def test_translucent_pixels_carve_nothing():
     """Carving only where alpha ≤ 0.05 recovers the sphere from the 12 opaque views (every vertex within
-    half a voxel); carving wherever alpha < 0.5 (the old rule) erases it."""
+    a voxel, mean within a quarter); carving wherever alpha < 0.5 (the old rule) erases it."""
     kept, voxel = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.05))
-    assert np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS).max() < 0.5 * voxel
+    err = np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS)
+    assert err.max() < voxel and err.mean() < 0.25 * voxel
     try:
         carved = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.5))[0].volume()
     except ValueError as exc:  # nothing left at all
@@ -86,7 +87,8 @@ def test_translucent_pixels_carve_nothing():
 def test_a_see_through_shell_keeps_its_interior_with_the_free_depth():
     """Every other view sees through a translucent front: its (median) depth is the sphere's back surface,
     its free depth (opacity reaches carve_alpha) the front. With the free depth the sphere is recovered
-    (every vertex within half a voxel); deciding by the pixel alone carves the interior away."""
+    (every vertex within a voxel, mean within a quarter); deciding by the pixel alone carves the interior
+    away."""
     cams, grid = _cameras(), VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 64)
     rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05)
     with_free, without = [], []
@@ -98,14 +100,15 @@ def test_a_see_through_shell_keeps_its_interior_with_the_free_depth():
         without.append(View(c, depth, alpha))
     field = fuse_narrow_band(grid, with_free, rule).field
     kept = largest_component(marching_cubes(field, grid.origin, grid.voxel))
-    assert np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS).max() < 0.5 * grid.voxel
+    err = np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS)
+    assert err.max() < grid.voxel and err.mean() < 0.25 * grid.voxel
     hollow = fuse_narrow_band(grid, without, rule).field
     assert hollow[tuple(n // 2 for n in grid.shape)] > 0  # the centre is carved
 
 
 def test_nan_depth_is_no_surface():
-    """A median-depth map is NaN where the opacity never reaches 1/2: such pixels place no surface (with
-    alpha above carve_alpha they say nothing), so NaN never reaches the field."""
+    """A median-depth map is NaN where the opacity never reaches 1/2: such pixels (alpha 0.2 here, above
+    carve_alpha) say nothing, NaN never reaches the field, and the sphere's pixels alone give the sphere."""
     cams = _cameras()
     views = []
     for c in cams:
@@ -115,7 +118,7 @@ def test_nan_depth_is_no_surface():
     field = fuse_views(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.05)).field
     assert np.isfinite(field).all()
     mesh = largest_component(marching_cubes(field, grid.origin, grid.voxel))
-    assert mesh.vertices.max() > 0.99  # nothing carved the box: the unknown pixels observed nothing
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - RADIUS).max() < grid.voxel
 
 
 def test_clip_to_hull_is_the_intersection_with_the_visual_hull():

@@ -7,8 +7,9 @@ Per view and voxel centre x (camera depth z, nearest pixel p), three facts about
 * beyond f(p) the ray passed through something, so a voxel there is only observed near the surface.
 
 The voxel observes s = (d(p) − z) / truncation clamped to ≤ 1 (s = +1 without a surface) when z < f(p)
-(space carving), or when it lies within the truncation band |s| ≤ 1 of a surface; never when s < −1
-(far behind the surface). A see-through model's translucent front (opacity below one half, so the median
+(space carving), or when it lies behind a surface within the truncation band (−1 ≤ s ≤ 0); never when
+s < −1 (far behind the surface), nor in front of the surface beyond f(p) (a median depth that looked
+through a translucent front lands on a back surface, whose front side is the object's inside). A see-through model's translucent front (opacity below one half, so the median
 depth lands on the back surface) thus carves nothing behind f(p): the object's interior, which a Gaussian
 shell leaves empty, is not declared free by the views that look through it. Without a free-depth map,
 f(p) = d(p) on surface pixels, +∞ where alpha ≤ ``carve_alpha`` and −∞ in between (a pixel's own alpha
@@ -147,7 +148,7 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule
         d = v.depth[pix]
         surface = (v.alpha[pix] >= rule.alpha_threshold) & torch.isfinite(d)
         s = torch.where(surface, (d - z) / rule.truncation, 1.0)
-        seen = valid & (s >= -1.0) & ((z < v.free[pix]) | (surface & (s <= 1.0)))
+        seen = valid & (s >= -1.0) & ((z < v.free[pix]) | (surface & (s <= 0.0)))
         s = s.clamp_max(1.0)
         total += s.masked_fill_(~seen, 0.0)
         count += seen
