@@ -7,15 +7,16 @@ Per view and voxel centre x (camera depth z, nearest pixel p), three facts about
 * beyond f(p) the ray passed through something, so a voxel there is only observed near the surface.
 
 The voxel observes s = (d(p) − z) / truncation clamped to ≤ 1 (s = +1 without a surface) when z < f(p)
-(space carving), or when it lies behind a surface within the truncation band (−1 ≤ s ≤ 0); never when
-s < −1 (far behind the surface), nor in front of the surface beyond f(p) (a median depth that looked
-through a translucent front lands on a back surface, whose front side is the object's inside). A see-through model's translucent front (opacity below one half, so the median
-depth lands on the back surface) thus carves nothing behind f(p): the object's interior, which a Gaussian
-shell leaves empty, is not declared free by the views that look through it. Without a free-depth map,
-f(p) = d(p) on surface pixels, +∞ where alpha ≤ ``carve_alpha`` and −∞ in between (a pixel's own alpha
-decides). The field is the mean of the observations. Voxels nobody observed are behind every surface
-seen, i.e. inside, and count as −1, so marching cubes finds no second surface within the object. Colours
-are averaged over the observations within the band (|s| < 1) of surface pixels.
+(space carving), or when it lies behind a surface within the truncation band (−1 ≤ s ≤ 0); never when s < −1
+(far behind the surface), nor in front of the surface beyond f(p) (a median depth that looked through a
+translucent front lands on a back surface, whose front side is the object's inside). A see-through model's
+translucent front (opacity below one half, so the median depth lands on the back surface) thus carves
+nothing behind f(p): the object's interior, which a Gaussian shell leaves empty, is not declared free by the
+views that look through it. Without a free-depth map, f(p) = d(p) on surface pixels, +∞ where alpha ≤
+``carve_alpha`` and −∞ in between (a pixel's own alpha decides). The field is the mean of the observations.
+Voxels nobody observed are behind every surface seen, i.e. inside, and count as −1, so marching cubes finds
+no second surface within the object. Colours are averaged over the observations within the band (|s| < 1) of
+surface pixels.
 
 Fusion walks the voxels in chunks through every view (``fuse_views``): the work is a few dozen elementwise
 operations per voxel and view, memory-bound when whole-grid temporaries are used (4.3M voxels: 2.0 s per
