@@ -55,18 +55,25 @@ def train(scene_dir: Path, cache: Path, iterations: int | None, seed: int) -> Pa
     return path
 
 
-def measure(scene_dir: Path, cache: Path, seed: int, samples: int, export_dir: Path | None) -> dict:
+def mesh_params(overrides: list[str]):
+    """The mesh step's params (its defaults, ``KEY=VALUE`` overrides parsed as YAML scalars, checked)."""
+    import yaml
+
+    values = {k: yaml.safe_load(v) for k, v in (o.split("=", 1) for o in overrides)}
+    return step_params("go_pipeline.steps.mesh", values)
+
+
+def measure(scene_dir: Path, cache: Path, seed: int, samples: int, export_dir: Path | None, params) -> dict:
     """Meshes of one scene (hull, coarse), their seconds and their scores against the ground truth."""
     scene = load_scene(scene_dir)
     cams, masks = scene.train_cameras, [v.mask for v in scene.train]
     g = Gaussians.load(cache / scene_dir.name / "coarse_gaussians.npz").to(dtype=torch.float32)
-    mesh_params = step_params("go_pipeline.steps.mesh", {})
-    settings = MeshSettings(**{k: getattr(mesh_params, k) for k in MeshSettings.__dataclass_fields__})
+    settings = MeshSettings(**{k: getattr(params, k) for k in MeshSettings.__dataclass_fields__})
     t0 = time.perf_counter()
     box = hull_bounds(cams, masks, min_views=len(cams))
-    coarse, info = mesh_from_gaussians(g, cams, box, settings)
+    coarse, info = mesh_from_gaussians(g, cams, box, settings, masks)
     t1 = time.perf_counter()
-    hull = hull_mesh(cams, masks, mesh_params.hull_resolution)
+    hull = hull_mesh(cams, masks, params.hull_resolution)
     t2 = time.perf_counter()
     if export_dir is not None:  # the files the step would write, for a look (and their cost)
         write_ply(coarse, export_dir / scene_dir.name / "model_mesh.ply")
@@ -77,6 +84,7 @@ def measure(scene_dir: Path, cache: Path, seed: int, samples: int, export_dir: P
     gt = read_mesh_npz(scene_dir / "mesh_world.npz")
     test_masks = [v.mask for v in scene.test]
     scores = score_meshes({"hull": hull, "coarse": coarse}, gt, scene.test_cameras, test_masks, samples, seed)
+    t4 = time.perf_counter()
     run = json.loads((cache / scene_dir.name / "coarse_run.json").read_text())
     return {
         **scores,
@@ -86,9 +94,20 @@ def measure(scene_dir: Path, cache: Path, seed: int, samples: int, export_dir: P
             "hull_mesh": round(t2 - t1, 2),
             "write_files": round(t3 - t2, 2),
             "mesh_step_total": round(t3 - t0, 2),
+            "metrics_both_meshes": round(t4 - t3, 2),
         },
         "coarse_model": {k: run[k] for k in ("gaussians", "coarse_cpu_s", "coarse_wall_s") if k in run},
     }
+
+
+def previous_scenes(out: Path, protocol: dict) -> dict:
+    """The scenes already in ``out`` when it was made with the same ``protocol`` (resumable runs)."""
+    if not out.is_file():
+        return {}
+    old = json.loads(out.read_text())
+    if any(old.get(k) != v for k, v in protocol.items()):
+        raise SystemExit(f"{out}: made with another protocol, cannot --merge into it")
+    return old["scenes"]
 
 
 def summary(scenes: dict) -> dict:
@@ -119,15 +138,23 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=300_000, help="points sampled on each surface")
     ap.add_argument("--export", type=Path, default=None, help="also write model_mesh.ply / model.glb here")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/geometry_dev.json"))
+    ap.add_argument("--merge", action="store_true", help="keep --out's other scenes (same protocol)")
+    ap.add_argument("--mesh", nargs="*", default=[], metavar="KEY=VALUE", help="mesh step params to change")
     args = ap.parse_args()
+    params = mesh_params(args.mesh)
     if args.stage in ("train", "all"):
         for name in args.scenes:
             print(f"{name}: coarse model {train(args.data / name, args.cache, args.iterations, args.seed)}")
     if args.stage == "train":
         return
-    scenes = {}
+    protocol = {
+        "seed": args.seed,
+        "samples_per_surface": args.samples,
+        "mesh_params": {k: getattr(params, k) for k in MeshSettings.__dataclass_fields__},
+    }
+    scenes = previous_scenes(args.out, protocol) if args.merge else {}
     for name in args.scenes:
-        scenes[name] = measure(args.data / name, args.cache, args.seed, args.samples, args.export)
+        scenes[name] = measure(args.data / name, args.cache, args.seed, args.samples, args.export, params)
         h, c = scenes[name]["hull"], scenes[name]["coarse"]
         print(
             f"{name:14s} chamfer hull {h['chamfer_l1']:.4f} coarse {c['chamfer_l1']:.4f}  "
@@ -140,8 +167,8 @@ def main() -> None:
         "final_mesh": "coarse model (the repair chain is not run in this benchmark)",
         "machine": platform.machine(),
         "torch_threads": torch.get_num_threads(),
-        "seed": args.seed,
-        "samples_per_surface": args.samples,
+        **protocol,
+        "mesh_overrides": args.mesh,
         "scenes": scenes,
         **summary(scenes),
     }

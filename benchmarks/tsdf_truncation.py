@@ -17,9 +17,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from go_core.mesh.settings import MeshSettings  # noqa: E402
 from go_core.mesh.surface import largest_component, marching_cubes  # noqa: E402
-from go_core.mesh.tsdf import View, VoxelGrid, fuse_narrow_band  # noqa: E402
+from go_core.mesh.tsdf import FusionRule, View, VoxelGrid, fuse_narrow_band  # noqa: E402
 from go_core.metrics.geometry import geometry_metrics  # noqa: E402
 from go_core.seeding import numpy_rng  # noqa: E402
 from tests._synthetic_depth import (  # noqa: E402
@@ -58,7 +57,7 @@ def main() -> None:
             rng = numpy_rng(0, "tsdf_truncation", shape, str(noise))
             views = [View(c, d + noise * grid.voxel * rng.standard_normal(d.shape), a) for c, d, a in exact]
             for trunc in TRUNCATIONS:
-                tsdf = fuse_narrow_band(grid, views, trunc * grid.voxel, MeshSettings().alpha_threshold)
+                tsdf = fuse_narrow_band(grid, views, FusionRule(trunc * grid.voxel))
                 mesh = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
                 m = geometry_metrics(mesh, truth, count=100_000, seed=0)
                 row = {"shape": shape, "noise_voxels": noise, "truncation_voxels": trunc}

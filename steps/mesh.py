@@ -40,7 +40,7 @@ def run(ctx, inputs: dict[str, Path], params: MeshParams) -> None:
     t0 = time.perf_counter()
     box = hull_bounds(cameras, masks, min_views=len(cameras))
     settings = MeshSettings(**{f.name: getattr(params, f.name) for f in fields(MeshSettings)})
-    mesh, info = mesh_from_gaussians(gaussians, cameras, box, settings)
+    mesh, info = mesh_from_gaussians(gaussians, cameras, box, settings, masks)
     seconds = info.pop("seconds")
     write_ply(mesh, art.MESH_PLY.path(ctx.out_dir))
     ellipse = fit_ellipse(cameras)

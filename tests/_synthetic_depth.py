@@ -36,13 +36,15 @@ def _rays(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
     return np.broadcast_to(cam.center, d_cam.shape), d_cam @ R  # world directions with unit camera-z
 
 
-def sphere_depth(cam: Camera, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """(camera-z depth, alpha) [H,W] of a sphere of ``radius`` at the origin."""
+def sphere_depth(cam: Camera, radius: float, back: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(camera-z depth, alpha) [H,W] of a sphere of ``radius`` at the origin: where each ray enters it, or
+    leaves it (``back``)."""
     o, d = _rays(cam)
     a, b, c = (d * d).sum(1), 2 * (o * d).sum(1), (o * o).sum(1) - radius**2
     disc = b * b - 4 * a * c
     hit = disc >= 0
-    t = np.where(hit, (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a), 0.0)
+    root = np.sqrt(np.maximum(disc, 0))
+    t = np.where(hit, (-b + (root if back else -root)) / (2 * a), 0.0)
     return t.reshape(cam.height, cam.width), hit.reshape(cam.height, cam.width).astype(np.float32)
 
 

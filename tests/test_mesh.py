@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from go_core.mesh.extract import clip_to_hull
 from go_core.mesh.files import read_ply, write_glb, write_ply
 from go_core.mesh.hull_mesh import hull_mesh
 from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes
-from go_core.mesh.tsdf import View, VoxelGrid, fuse_narrow_band, fuse_views
+from go_core.mesh.tsdf import FusionRule, View, VoxelGrid, fuse_narrow_band, fuse_views
 from go_core.metrics.geometry import geometry_metrics
 from tests._synthetic_depth import box_mesh, cube_depth, ring_cameras, sphere_cameras_around, sphere_depth
 
@@ -32,7 +33,7 @@ def _fused(depth_fn, band: bool = True, resolution: int = 64):
     views = [View(c, *depth_fn(c)) for c in cams]
     grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), resolution)
     fuse = fuse_narrow_band if band else fuse_views
-    tsdf = fuse(grid, views, 3.0 * grid.voxel, 0.5)  # alpha >= 0.5: surface (mesh.alpha_threshold)
+    tsdf = fuse(grid, views, FusionRule(3.0 * grid.voxel))
     return largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel)), grid.voxel
 
 
@@ -55,6 +56,85 @@ def test_tsdf_recovers_a_cube():
     assert res["chamfer_l1"] < 0.5 * voxel
     assert res["fscore_2pct"] > 0.95 and res["normal_consistency"] > 0.95
     assert abs(mesh.volume() / (2 * HALF) ** 3 - 1) < 0.03
+
+
+def _see_through_sphere_views(rule: FusionRule, resolution: int = 64):
+    """Exact sphere depth from 24 cameras, but every other view sees the sphere as translucent (alpha 0.3
+    on it, as a sparse-view Gaussian model renders from unseen directions)."""
+    views = []
+    for k, c in enumerate(_cameras()):
+        depth, alpha = sphere_depth(c, RADIUS)
+        views.append(View(c, depth, alpha * (0.3 if k % 2 else 1.0)))
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), resolution)
+    tsdf = fuse_narrow_band(grid, views, FusionRule(3.0 * grid.voxel, 0.5, rule.carve_alpha))
+    return largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel)), grid.voxel
+
+
+def test_translucent_pixels_carve_nothing():
+    """Carving only where alpha ≤ 0.05 recovers the sphere from the 12 opaque views (every vertex within
+    a voxel, mean within a quarter); carving wherever alpha < 0.5 (the old rule) erases it."""
+    kept, voxel = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.05))
+    err = np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS)
+    assert err.max() < voxel and err.mean() < 0.25 * voxel
+    try:
+        carved = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.5))[0].volume()
+    except ValueError as exc:  # nothing left at all
+        assert "no surface" in str(exc)
+        carved = 0.0
+    assert carved < 0.1 * 4 / 3 * np.pi * RADIUS**3
+
+
+def test_a_see_through_shell_keeps_its_interior_with_the_free_depth():
+    """Every other view sees through a translucent front: its (median) depth is the sphere's back surface,
+    its free depth (opacity reaches carve_alpha) the front. With the free depth the sphere is recovered
+    (every vertex within a voxel, mean within a quarter); deciding by the pixel alone carves the interior
+    away."""
+    cams, grid = _cameras(), VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 64)
+    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05)
+    with_free, without = [], []
+    for k, c in enumerate(cams):
+        front, alpha = sphere_depth(c, RADIUS)
+        free = np.where(alpha > 0, front, np.nan)
+        depth = np.where(alpha > 0, sphere_depth(c, RADIUS, back=True)[0] if k % 2 else front, np.nan)
+        with_free.append(View(c, depth, alpha, None, free))
+        without.append(View(c, depth, alpha))
+    field = fuse_narrow_band(grid, with_free, rule).field
+    kept = largest_component(marching_cubes(field, grid.origin, grid.voxel))
+    err = np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS)
+    assert err.max() < grid.voxel and err.mean() < 0.25 * grid.voxel
+    hollow = fuse_narrow_band(grid, without, rule).field
+    assert hollow[tuple(n // 2 for n in grid.shape)] > 0  # the centre is carved
+
+
+def test_nan_depth_is_no_surface():
+    """A median-depth map is NaN where the opacity never reaches 1/2: such pixels (alpha 0.2 here, above
+    carve_alpha) say nothing, NaN never reaches the field, and the sphere's pixels alone give the sphere."""
+    cams = _cameras()
+    views = []
+    for c in cams:
+        depth, alpha = sphere_depth(c, RADIUS)
+        views.append(View(c, np.where(alpha > 0, depth, np.nan), np.where(alpha > 0, 1.0, 0.2)))
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 48)
+    field = fuse_views(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.05)).field
+    assert np.isfinite(field).all()
+    mesh = largest_component(marching_cubes(field, grid.origin, grid.voxel))
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - RADIUS).max() < grid.voxel
+
+
+def test_clip_to_hull_is_the_intersection_with_the_visual_hull():
+    """A solid filling the grid, clipped to the hull of a sphere (r 0.5) seen by 24 cameras: the surface is
+    the hull's (outside the sphere by at most the hull's own excess, inside it by at most half a voxel); a
+    small sphere (r 0.3) deep inside the hull is left unchanged."""
+    cams = _cameras()
+    masks = [sphere_depth(c, 0.5)[1] for c in cams]
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 64)
+    full = np.full(grid.shape, -1.0, np.float32)
+    mesh = largest_component(marching_cubes(clip_to_hull(full, grid, cams, masks), grid.origin, grid.voxel))
+    r = np.linalg.norm(mesh.vertices, axis=1)
+    assert r.min() > 0.5 - 0.5 * grid.voxel and r.max() < 0.5 * 1.1
+    centres = grid.centres().numpy().reshape(*grid.shape, 3)
+    small = np.clip((np.linalg.norm(centres, axis=-1) - 0.3) / (3 * grid.voxel), -1, 1).astype(np.float32)
+    assert np.array_equal(clip_to_hull(small, grid, cams, masks), small)
 
 
 def test_narrow_band_fusion_gives_the_full_grid_surface():

@@ -56,3 +56,60 @@ def test_depth_of_a_wall_of_flat_gaussians_is_its_distance(cpu_ext):  # noqa: F8
         covered = out.alpha[0, ..., 0] > 0.5
         assert covered.float().mean() > 0.9
         assert np.allclose(out.depth[0, ..., 0][covered].numpy(), 2.5, rtol=1e-5), backend
+
+
+def _projected(backend: str, W: int, H: int, scene, dtype):
+    from go_core.render.cpu import project_cpu
+    from go_core.render.projection import project_gaussians
+
+    means, quats, scales, opac, _, vms, Ks = (t.to(dtype) for t in scene)
+    cols = torch.zeros(len(means), 3, dtype=dtype)
+    project = project_gaussians if backend == "reference" else project_cpu
+    return project(means, quats, scales, opac, cols, vms, Ks, W, H)
+
+
+def test_cpu_median_depth_matches_float64_reference(cpu_ext):  # noqa: F811
+    """Same stopping Gaussian per pixel: NaN (opacity never reaches 1/2) on the same pixels and the same
+    depth elsewhere, but for pixels whose transmittance lands within float32 rounding of 1/2."""
+    from go_core.render.cpu import median_depth_cpu
+    from go_core.render.reference import median_depth_reference
+
+    W, H = 70, 45
+    scene = random_scene(600, W, H, cams=2, seed=14)
+    p = _projected("reference", W, H, scene, torch.float64)
+    ref = median_depth_reference(p, W, H)
+    q = _projected("cpu", W, H, scene, torch.float32)
+    cpu = median_depth_cpu(q, W, H).double()
+    assert 0.05 < torch.isnan(ref).float().mean() < 0.95  # both kinds of pixel are tested
+    same = (torch.isnan(ref) & torch.isnan(cpu)) | ((cpu - ref).abs() <= 1e-5 * ref.abs())
+    assert same.float().mean() >= 0.999
+
+
+def _two_walls(front_opacity: float) -> list[torch.Tensor]:
+    """One wide Gaussian at z = 2 (opacity ``front_opacity``) in front of one at z = 3 (opacity 0.9),
+    both flat and facing a camera at the origin: near the image centre alpha ≈ each opacity."""
+    means = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 3.0]], dtype=torch.float64)
+    quats = torch.tensor([[1.0, 0, 0, 0]] * 2, dtype=torch.float64)
+    scales = torch.tensor([[5.0, 5.0, 1e-4]] * 2, dtype=torch.float64)
+    opac = torch.tensor([front_opacity, 0.9], dtype=torch.float64)
+    K = torch.tensor([[[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]]], dtype=torch.float64)
+    view = torch.eye(4, dtype=torch.float64)[None]
+    return [means, quats, scales, opac, torch.zeros(2, 3, dtype=torch.float64), view, K]
+
+
+def test_median_depth_of_a_translucent_wall_is_the_surface_behind_it(cpu_ext):  # noqa: F811
+    """Front wall at opacity 0.3: the expected depth lies between the walls (2.68 at the centre), the median
+    depth is the back wall's 3; at opacity 0.7 the median is the front wall's 2. Both backends."""
+    from go_core.gaussians import Gaussians
+    from go_core.render.api import render_median_depth
+
+    for front, median in ((0.3, 3.0), (0.7, 2.0)):
+        args = _two_walls(front)
+        exp_depth = render(*args, 32, 32, backend="reference").depth[0, 16, 16, 0].item()
+        if front < 0.5:
+            assert 2.5 < exp_depth < 2.9
+        g = Gaussians(args[0], args[1], args[2].log(), torch.logit(args[3]), args[4][:, None, :])
+        for backend in ("reference", "cpu"):
+            med = render_median_depth(g, args[5], args[6], 32, 32, backend=backend)[0]
+            centre = med[12:20, 12:20].double()
+            assert torch.allclose(centre, torch.tensor(median, dtype=torch.float64)), backend

@@ -11,47 +11,92 @@ from dataclasses import asdict
 import numpy as np
 
 from go_core.camera import Camera
+from go_core.mesh.hull_mesh import hull_field
 from go_core.mesh.settings import MeshSettings
 from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes, sample_colours
-from go_core.mesh.tsdf import Tsdf, View, VoxelGrid, fuse_narrow_band
+from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_band
 from go_core.mesh.views import fusion_cameras
 
 
-def render_maps(gaussians, cameras: list[Camera], backend: str, batch: int):
-    """Yield (camera, depth [H,W], alpha [H,W], straight rgb [H,W,3]) float32 numpy per camera."""
+def render_maps(
+    gaussians,
+    cameras: list[Camera],
+    backend: str,
+    batch: int,
+    depth: str = "expected",
+    free_level: float = 0.05,
+):
+    """Yield (camera, depth [H,W], alpha [H,W], straight rgb [H,W,3], free depth [H,W]) float32 numpy per
+    camera; ``depth`` "expected" (alpha-weighted mean) or "median" (where the opacity reaches 1/2), the free
+    depth where it reaches ``free_level`` (both NaN where it never does)."""
     import torch
 
     from go_core.render import render_gaussians
+    from go_core.render.api import render_median_depth
 
+    if depth not in ("expected", "median"):
+        raise ValueError(f"depth must be 'expected' or 'median', got {depth!r}")
     g = gaussians.to(dtype=torch.float32)
     with torch.no_grad():
         for start in range(0, len(cameras), batch):
             chunk = cameras[start : start + batch]
             viewmats = torch.stack([c.viewmat_tensor(device=g.means.device) for c in chunk])
             Ks = torch.stack([c.K_tensor(device=g.means.device) for c in chunk])
-            out = render_gaussians(g, viewmats, Ks, chunk[0].width, chunk[0].height, backend=backend)
+            w, h = chunk[0].width, chunk[0].height
+            out = render_gaussians(g, viewmats, Ks, w, h, backend=backend)
             alpha = out.alpha[..., 0].cpu().numpy()
-            depth = out.depth[..., 0].cpu().numpy()
+            if depth == "median":
+                z = render_median_depth(g, viewmats, Ks, w, h, backend=backend).numpy()
+            else:
+                z = out.depth[..., 0].cpu().numpy()
+            free = render_median_depth(g, viewmats, Ks, w, h, level=free_level, backend=backend).numpy()
             rgb = (out.rgb / out.alpha.clamp_min(1e-6)).clamp(0, 1).cpu().numpy()
             for i, cam in enumerate(chunk):
-                yield cam, depth[i], alpha[i], rgb[i]
+                yield cam, z[i], alpha[i], rgb[i], free[i]
+
+
+def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
+    """The settings' pixel rules on a grid of ``voxel``."""
+    return FusionRule(settings.truncation_voxels * voxel, settings.alpha_threshold, settings.carve_alpha)
 
 
 def fuse(gaussians, cameras: list[Camera], grid: VoxelGrid, settings: MeshSettings) -> Tsdf:
     """The TSDF of ``gaussians`` seen from ``cameras``."""
-    views = [View(*maps) for maps in render_maps(gaussians, cameras, settings.backend, settings.batch)]
-    return fuse_narrow_band(grid, views, settings.truncation_voxels * grid.voxel, settings.alpha_threshold)
+    maps = render_maps(
+        gaussians, cameras, settings.backend, settings.batch, settings.depth, settings.carve_alpha
+    )
+    return fuse_narrow_band(grid, [View(*m) for m in maps], fusion_rule(settings, grid.voxel))
+
+
+def clip_to_hull(
+    field: np.ndarray, grid: VoxelGrid, cameras: list[Camera], masks: list[np.ndarray], threshold: float = 0.5
+) -> np.ndarray:
+    """The intersection of the solid ``field`` (in truncation units, negative inside) with the visual hull:
+    max(field, 2·(threshold − min mask)) clamped to [−1, 1], whose zero level is the hull's boundary
+    (go_core.mesh.hull_mesh) wherever the hull is the tighter of the two. The object lies inside the hull by
+    construction, so nothing outside it can be surface."""
+    hull = np.clip(2.0 * hull_field(grid, cameras, masks, threshold), -1.0, 1.0)
+    return np.maximum(field, hull.astype(field.dtype))
 
 
 def mesh_from_gaussians(
-    gaussians, train_cameras: list[Camera], box: tuple[np.ndarray, np.ndarray], settings: MeshSettings
+    gaussians,
+    train_cameras: list[Camera],
+    box: tuple[np.ndarray, np.ndarray],
+    settings: MeshSettings,
+    masks: list[np.ndarray] | None = None,
 ) -> tuple[TriMesh, dict]:
-    """The coloured surface of ``gaussians`` inside ``box`` (lo, hi; e.g. the visual hull's bounds), and
-    a summary (counts; ``seconds`` per stage, which differ between runs: keep them out of artifacts)."""
+    """The coloured surface of ``gaussians`` inside ``box`` (lo, hi; e.g. the visual hull's bounds), clipped
+    to the visual hull of the training ``masks`` when ``settings.clip_to_hull``, and a summary (counts;
+    ``seconds`` per stage, which differ between runs: keep them out of artifacts)."""
+    if settings.clip_to_hull and masks is None:
+        raise ValueError("clip_to_hull needs the training masks")
     t0 = time.perf_counter()
     cameras = fusion_cameras(train_cameras, settings.ellipse_views, settings.sphere_views, settings.max_size)
     grid = VoxelGrid.around(box[0], box[1], settings.resolution)
     tsdf = fuse(gaussians, cameras, grid, settings)
+    if settings.clip_to_hull:
+        tsdf.field = clip_to_hull(tsdf.field, grid, train_cameras, masks)
     t1 = time.perf_counter()
     raw = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
     mesh = decimate(raw, settings.max_faces)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from go_core.coarse.settings import Backend
 from go_core.config import setting
@@ -14,7 +15,14 @@ class MeshSettings:
 
     resolution: int = setting(160, ge=16, le=512, doc="voxels along the longest side of the hull's box")
     truncation_voxels: float = setting(3.0, gt=0, doc="TSDF truncation in voxels (docs/geometry.md)")
-    alpha_threshold: float = setting(0.5, gt=0, lt=1, doc="rendered alpha >= this is surface, below: empty")
+    alpha_threshold: float = setting(0.5, gt=0, lt=1, doc="rendered alpha >= this (and a depth) is a surface")
+    carve_alpha: float = setting(
+        0.05, gt=0, lt=1, doc="a ray is empty space up to where its accumulated opacity reaches this"
+    )
+    depth: Literal["median", "expected"] = setting(
+        "median", doc="fused depth: where the opacity reaches 1/2, or the alpha-weighted mean"
+    )
+    clip_to_hull: bool = setting(True, doc="intersect the fused solid with the visual hull of the masks")
     ellipse_views: int = setting(24, ge=0, doc="fusion views on the ellipse of the training cameras")
     sphere_views: int = setting(40, ge=0, doc="fusion views on a Fibonacci sphere around the object")
     max_size: int = setting(256, ge=16, doc="longest image side of the fusion renders, px")

@@ -1,12 +1,22 @@
 """Truncated signed-distance fusion of rendered depth + alpha maps on a regular voxel grid (vectorised torch).
 
-Per view and voxel centre x (camera depth z, nearest pixel p): where alpha(p) ≥ ``alpha_threshold`` the
-pixel saw a surface at depth d(p) and the voxel observes s = (d(p) − z) / truncation, kept when s ≥ −1
-(voxels far behind the surface are unobserved) and clamped to ≤ 1; where alpha(p) is below the threshold
-the ray is empty and the voxel observes s = +1 (space carving: what the silhouette excludes is outside).
-The field is the running mean of the observations. Voxels nobody observed are behind every surface seen,
-i.e. inside, and count as −1, so marching cubes finds no second surface within the object. Colours are
-averaged over the observations within the band (|s| < 1) of surface pixels.
+Per view and voxel centre x (camera depth z, nearest pixel p), three facts about the ray through p:
+* where alpha(p) ≥ ``alpha_threshold`` and the depth d(p) is finite the pixel saw a surface at d(p);
+* the ray is empty up to its free depth f(p): the depth at which its accumulated opacity reaches
+  ``carve_alpha`` (+∞ where it never does, i.e. alpha(p) ≤ ``carve_alpha``: the whole ray is empty);
+* beyond f(p) the ray passed through something, so a voxel there is only observed near the surface.
+
+The voxel observes s = (d(p) − z) / truncation clamped to ≤ 1 (s = +1 without a surface) when z < f(p)
+(space carving), or when it lies behind a surface within the truncation band (−1 ≤ s ≤ 0); never when s < −1
+(far behind the surface), nor in front of the surface beyond f(p) (a median depth that looked through a
+translucent front lands on a back surface, whose front side is the object's inside). A see-through model's
+translucent front (opacity below one half, so the median depth lands on the back surface) thus carves
+nothing behind f(p): the object's interior, which a Gaussian shell leaves empty, is not declared free by the
+views that look through it. Without a free-depth map, f(p) = d(p) on surface pixels, +∞ where alpha ≤
+``carve_alpha`` and −∞ in between (a pixel's own alpha decides). The field is the mean of the observations.
+Voxels nobody observed are behind every surface seen, i.e. inside, and count as −1, so marching cubes finds
+no second surface within the object. Colours are averaged over the observations within the band (|s| < 1) of
+surface pixels.
 
 Fusion walks the voxels in chunks through every view (``fuse_views``): the work is a few dozen elementwise
 operations per voxel and view, memory-bound when whole-grid temporaries are used (4.3M voxels: 2.0 s per
@@ -15,7 +25,7 @@ view on one loaded core), cache-resident in chunks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -61,12 +71,13 @@ class VoxelGrid:
 @dataclass
 class View:
     """One fused view: camera-z ``depth`` and coverage ``alpha`` [H,W], straight (not premultiplied)
-    colour ``rgb`` [H,W,3] or None."""
+    colour ``rgb`` [H,W,3] or None, and the free depth [H,W] (module docstring) or None."""
 
     camera: Camera
     depth: np.ndarray
     alpha: np.ndarray
     rgb: np.ndarray | None = None
+    free_depth: np.ndarray | None = None  # [H,W] where the opacity reaches carve_alpha (NaN: never)
 
 
 @dataclass
@@ -81,10 +92,28 @@ class Tsdf:
     colour_counts: np.ndarray
 
 
+@dataclass(frozen=True)
+class FusionRule:
+    """What a pixel says (module docstring): ``truncation`` in world units, alpha ≥ ``alpha_threshold``
+    (with a finite depth): a surface; the ray is empty up to where its opacity reaches ``carve_alpha``."""
+
+    truncation: float
+    alpha_threshold: float = 0.5
+    carve_alpha: float = 0.5
+
+    def __post_init__(self):
+        if self.truncation <= 0:
+            raise ValueError(f"the truncation must be positive, got {self.truncation}")
+        if not 0.0 <= self.carve_alpha <= self.alpha_threshold:
+            raise ValueError(
+                f"need 0 <= carve_alpha <= alpha_threshold, got {self.carve_alpha}, {self.alpha_threshold}"
+            )
+
+
 class _PackedView:
     """A view's projection constants and flattened maps as torch tensors."""
 
-    def __init__(self, view: View):
+    def __init__(self, view: View, rule: FusionRule):
         cam = view.camera
         self.h, self.w = cam.height, cam.width
         self.R = torch.as_tensor(cam.world_to_cam[:3, :3], dtype=torch.float32)
@@ -94,9 +123,16 @@ class _PackedView:
         self.depth = torch.as_tensor(np.ascontiguousarray(view.depth, np.float32)).reshape(-1)
         rgb = None if view.rgb is None else np.ascontiguousarray(view.rgb, np.float32).reshape(-1, 3)
         self.rgb = None if rgb is None else torch.as_tensor(rgb)
+        if view.free_depth is not None:
+            free = torch.as_tensor(np.ascontiguousarray(view.free_depth, np.float32)).reshape(-1)
+            self.free = torch.nan_to_num(free, nan=float("inf"))
+        else:
+            surface = (self.alpha >= rule.alpha_threshold) & torch.isfinite(self.depth)
+            empty = torch.where(self.alpha <= rule.carve_alpha, float("inf"), float("-inf"))
+            self.free = torch.where(surface, self.depth, empty)
 
 
-def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], truncation: float, alpha_threshold: float):
+def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule):
     """Observation sums and counts, colour sums and counts for the voxel centres ``points`` [M,3]."""
     total = torch.zeros(len(points))
     count = torch.zeros(len(points))
@@ -110,9 +146,10 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], truncation: floa
         r = torch.floor(v.K[3] * y * inv + v.K[4])
         valid = (z > 1e-6) & (u >= 0) & (u < v.w) & (r >= 0) & (r < v.h)
         pix = (r * v.w + u).long().masked_fill_(~valid, 0)
-        surface = v.alpha[pix] >= alpha_threshold
-        s = torch.where(surface, (v.depth[pix] - z) / truncation, 1.0)
-        seen = valid & (s >= -1.0)
+        d = v.depth[pix]
+        surface = (v.alpha[pix] >= rule.alpha_threshold) & torch.isfinite(d)
+        s = torch.where(surface, (d - z) / rule.truncation, 1.0)
+        seen = valid & (s >= -1.0) & ((z < v.free[pix]) | (surface & (s <= 0.0)))
         s = s.clamp_max(1.0)
         total += s.masked_fill_(~seen, 0.0)
         count += seen
@@ -126,8 +163,7 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], truncation: floa
 def fuse_views(
     grid: VoxelGrid,
     views: list[View],
-    truncation: float,
-    alpha_threshold: float,
+    rule: FusionRule,
     active: np.ndarray | None = None,
     fill: np.ndarray | None = None,
     chunk: int = 1 << 17,
@@ -135,9 +171,7 @@ def fuse_views(
     """The TSDF of ``views`` on ``grid`` (rules in the module docstring), computed for the voxels that the
     boolean [X,Y,Z] ``active`` selects (all when None); the others take ``fill`` [X,Y,Z] (default −1).
     Voxels are processed in chunks of ``chunk`` through every view."""
-    if truncation <= 0:
-        raise ValueError(f"the truncation must be positive, got {truncation}")
-    packed = [_PackedView(v) for v in views]
+    packed = [_PackedView(v, rule) for v in views]
     ax = [a.float() for a in grid.axes()]
     nx, ny, nz = grid.shape
     n = nx * ny * nz
@@ -149,7 +183,7 @@ def fuse_views(
     for start in range(0, len(todo), chunk):
         idx = todo[start : start + chunk]
         points = torch.stack([ax[0][idx // (ny * nz)], ax[1][(idx // nz) % ny], ax[2][idx % nz]], dim=1)
-        total, count, cs, cc = _fuse_chunk(points, packed, float(truncation), float(alpha_threshold))
+        total, count, cs, cc = _fuse_chunk(points, packed, rule)
         field[idx] = torch.where(count > 0, total / count.clamp_min(1.0), -1.0)
         rgb_sum[idx], rgb_count[idx] = cs, cc
     shape = grid.shape
@@ -161,9 +195,7 @@ def fuse_views(
     )
 
 
-def fuse_narrow_band(
-    grid: VoxelGrid, views: list[View], truncation: float, alpha_threshold: float, factor: int = 4
-) -> Tsdf:
+def fuse_narrow_band(grid: VoxelGrid, views: list[View], rule: FusionRule, factor: int = 4) -> Tsdf:
     """``fuse_views`` on ``grid`` restricted to a band around the surface found first on a grid ``factor``
     times coarser (truncation there: at least 1.5 of its voxels): fine voxels where the interpolated coarse
     field is within its truncation are fused, the others take its sign. Same surface wherever it lies within
@@ -171,14 +203,14 @@ def fuse_narrow_band(
     from scipy.ndimage import map_coordinates
 
     if factor <= 1:
-        return fuse_views(grid, views, truncation, alpha_threshold)
+        return fuse_views(grid, views, rule)
     coarse_grid = VoxelGrid(grid.origin, grid.voxel * factor, tuple(-(-n // factor) for n in grid.shape))
-    coarse_trunc = max(truncation, 1.5 * coarse_grid.voxel)
-    bare = [View(v.camera, v.depth, v.alpha) for v in views]
-    coarse = fuse_views(coarse_grid, bare, coarse_trunc, alpha_threshold).field
+    coarse_rule = replace(rule, truncation=max(rule.truncation, 1.5 * coarse_grid.voxel))
+    bare = [View(v.camera, v.depth, v.alpha, None, v.free_depth) for v in views]
+    coarse = fuse_views(coarse_grid, bare, coarse_rule).field
     coords = np.stack(
         np.meshgrid(*[np.arange(n, dtype=np.float32) / factor for n in grid.shape], indexing="ij")
     )
     upsampled = map_coordinates(coarse, coords.reshape(3, -1), order=1, mode="nearest").reshape(grid.shape)
     active = np.abs(upsampled) < 1.0
-    return fuse_views(grid, views, truncation, alpha_threshold, active=active, fill=np.sign(upsampled))
+    return fuse_views(grid, views, rule, active=active, fill=np.sign(upsampled))

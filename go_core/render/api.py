@@ -10,7 +10,15 @@ from go_core.render.types import RenderOutput
 
 BACKENDS = ("auto", "cpu", "cuda", "reference")
 DEPTH_EPS = 1e-10
-__all__ = ["BACKENDS", "DEPTH_EPS", "RenderOutput", "render", "render_camera", "render_gaussians"]
+__all__ = [
+    "BACKENDS",
+    "DEPTH_EPS",
+    "RenderOutput",
+    "render",
+    "render_camera",
+    "render_gaussians",
+    "render_median_depth",
+]
 
 
 def _check_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height) -> None:
@@ -145,3 +153,43 @@ def render_camera(gaussians, camera, **kwargs) -> RenderOutput:
         camera.height,
         **kwargs,
     )
+
+
+def render_median_depth(
+    gaussians,
+    viewmats: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+    *,
+    level: float = 0.5,
+    near_plane: float = 0.01,
+    far_plane: float = 1e10,
+    antialiased: bool = False,
+    backend: str = "auto",
+) -> torch.Tensor:
+    """[C,H,W] median depth of a ``Gaussians`` set, no gradient: per pixel the camera depth of the Gaussian
+    at which the accumulated opacity reaches ``level`` front to back (NaN where it never does;
+    docs/rendering.md). Unlike the expected depth it does not average a translucent front with what lies
+    behind it. gsplat has no equivalent: CUDA tensors are rendered by the compiled CPU backend on host
+    copies."""
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"the median depth's opacity level must lie in (0, 1), got {level}")
+    g = gaussians.to(device="cpu")
+    kind = _resolve_backend("auto" if backend == "cuda" else backend, torch.device("cpu"))
+    args = (g.means, g.quats, g.scales(), g.opacities(), g.means.new_zeros(len(g.means), 3))
+    args += (viewmats.cpu(), Ks.cpu(), int(width), int(height))
+    options = dict(near_plane=near_plane, far_plane=far_plane, antialiased=antialiased)
+    with torch.no_grad():
+        if kind == "reference":
+            from go_core.render.projection import project_gaussians
+            from go_core.render.reference import median_depth_reference
+
+            p = project_gaussians(*args, **options)
+            median = median_depth_reference
+        else:
+            from go_core.render.cpu import median_depth_cpu, project_cpu
+
+            p = project_cpu(*args, **options)
+            median = median_depth_cpu
+        return median(p, width, height, level)

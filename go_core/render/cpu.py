@@ -11,6 +11,8 @@ import torch
 
 from go_core.render.build import load_extension
 from go_core.render.projection import EPS2D, Projected, check_colors
+from go_core.render.reference import T_STOP
+from go_core.render.tiles import TILE, tile_grid
 
 
 def _f32(t: torch.Tensor) -> torch.Tensor:
@@ -86,7 +88,7 @@ class _RasterizeCPU(torch.autograd.Function):
         f32 = [_f32(t) for t in (means2d, conics, colors, feat4, opacities, depths)]
         rad = radii.detach().to(torch.int32).contiguous()
         params, toff, gid, goff, gpos = ext.bin_and_pack(*f32, rad, width, height)
-        out, alpha, tfinal, stop = ext.rasterize_forward(params, toff, gid, C, N, width, height)
+        out, alpha, tfinal, stop = ext.rasterize_forward(params, toff, gid, C, N, width, height, T_STOP)
         ctx.save_for_backward(params, toff, gid, goff, gpos, tfinal, stop)
         ctx.meta = (C, N, width, height, means2d.dtype)
         return out.to(means2d.dtype), alpha.to(means2d.dtype)
@@ -147,6 +149,33 @@ def rasterize_cpu_with_depth(
     return _RasterizeCPU.apply(
         means2d, conics, colors, depths, opacities, depths, radii, int(width), int(height)
     )
+
+
+def median_depth_cpu(proj: Projected, width: int, height: int, level: float = 0.5) -> torch.Tensor:
+    """Compiled ``go_core.render.reference.median_depth_reference`` ([C,H,W] float32, NaN where the opacity
+    never reaches ``level``; no gradient): the forward compositing stopped at transmittance 1 − level, and
+    the depth of the Gaussian each pixel stopped at."""
+    means2d, conics, opacities, depths, radii = (
+        proj.means2d, proj.conics, proj.opacities, proj.depths, proj.radii
+    )  # fmt: skip
+    _check_cpu(means2d)
+    ext = load_extension()
+    C, N = means2d.shape[:2]
+    zeros = torch.zeros(C, N, 3)
+    f32 = [_f32(t) for t in (means2d, conics, zeros, depths, opacities, depths)]
+    rad = radii.detach().to(torch.int32).contiguous()
+    params, toff, gid, _, _ = ext.bin_and_pack(*f32, rad, width, height)
+    stop = ext.rasterize_forward(params, toff, gid, C, N, width, height, 1.0 - level)[3].long()
+    if gid.numel() == 0:
+        return torch.full((C, height, width), float("nan"))
+    tiles_x, tiles_y = tile_grid(width, height)
+    ys, xs = torch.arange(height) // TILE, torch.arange(width) // TILE
+    tile = (torch.arange(C)[:, None, None] * tiles_y + ys[None, :, None]) * tiles_x + xs[None, None, :]
+    start, count = toff[tile], toff[tile + 1] - toff[tile]
+    stopped = stop < count
+    gauss = gid.long()[(start + stop).masked_fill(~stopped, 0)]
+    cam = torch.arange(C)[:, None, None].expand_as(gauss)
+    return torch.where(stopped, f32[3][cam, gauss], float("nan"))
 
 
 class _FinishCPU(torch.autograd.Function):

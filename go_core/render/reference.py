@@ -20,6 +20,29 @@ T_STOP = 1e-4
 CHUNK_ELEMS = 1 << 21  # Gaussian-pixel pairs evaluated per chunk
 
 
+def _pixel_alphas(
+    means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor, units: tuple
+) -> torch.Tensor:
+    """[U,16,L] alpha of each listed Gaussian at each pixel of U rows of 16 pixels (0 where unused);
+    ``units`` = (gidx, gvalid, px0, py) as for ``_composite_units``."""
+    gidx, gvalid, px0, py = units
+    dt = means2d.dtype
+    m = means2d[gidx]  # [U,L,2]
+    con = conics[gidx]
+    op = opacities[gidx]
+    cols = torch.arange(TILE, dtype=dt, device=m.device)
+    px = (px0.to(dt)[:, None] + cols[None, :] + 0.5)[:, :, None]  # [U,16,1]
+    pyc = (py.to(dt) + 0.5)[:, None, None]  # [U,1,1]
+    dx = m[:, None, :, 0] - px  # [U,16,L]
+    dy = m[:, None, :, 1] - pyc
+    a, b, c = con[:, None, :, 0], con[:, None, :, 1], con[:, None, :, 2]
+    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
+    sigma_safe = torch.clamp_min(sigma, 0.0)
+    alpha = torch.clamp_max(op[:, None, :] * torch.exp(-sigma_safe), ALPHA_MAX)
+    use = gvalid[:, None, :] & (sigma >= 0) & (alpha >= ALPHA_MIN)
+    return torch.where(use, alpha, torch.zeros_like(alpha))
+
+
 def _composite_units(
     means2d: torch.Tensor,
     conics: torch.Tensor,
@@ -35,22 +58,8 @@ def _composite_units(
     gidx/gvalid [U,L] (Gaussian index, real entry), px0 [U] first pixel column, py [U] pixel row.
     Returns [U,16,F+1]: accumulated features then alpha.
     """
-    dt = means2d.dtype
-    m = means2d[gidx]  # [U,L,2]
-    con = conics[gidx]
-    op = opacities[gidx]
+    alpha = _pixel_alphas(means2d, conics, opacities, (gidx, gvalid, px0, py))
     f = feats[gidx]  # [U,L,F]
-    cols = torch.arange(TILE, dtype=dt, device=m.device)
-    px = (px0.to(dt)[:, None] + cols[None, :] + 0.5)[:, :, None]  # [U,16,1]
-    pyc = (py.to(dt) + 0.5)[:, None, None]  # [U,1,1]
-    dx = m[:, None, :, 0] - px  # [U,16,L]
-    dy = m[:, None, :, 1] - pyc
-    a, b, c = con[:, None, :, 0], con[:, None, :, 1], con[:, None, :, 2]
-    sigma = 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy
-    sigma_safe = torch.clamp_min(sigma, 0.0)
-    alpha = torch.clamp_max(op[:, None, :] * torch.exp(-sigma_safe), ALPHA_MAX)
-    use = gvalid[:, None, :] & (sigma >= 0) & (alpha >= ALPHA_MIN)
-    alpha = torch.where(use, alpha, torch.zeros_like(alpha))
     trans_after = torch.cumprod(1.0 - alpha, dim=-1)
     keep = (trans_after > T_STOP).detach()
     trans_before = torch.cat([torch.ones_like(trans_after[..., :1]), trans_after[..., :-1]], dim=-1)
@@ -139,3 +148,33 @@ def rasterize_reference(
         feats_out.append(img[..., :F])
         alphas_out.append(img[..., F:])
     return torch.stack(feats_out), torch.stack(alphas_out)
+
+
+def median_depth_reference(proj, width: int, height: int, level: float = 0.5) -> torch.Tensor:
+    """[C,H,W] median depth of projected Gaussians ``proj`` (go_core.render.projection.Projected), no
+    gradient: per pixel the depth of the first Gaussian, front to back in its tile's list, after which the
+    accumulated opacity 1 − T reaches ``level``; NaN where it never does."""
+    means2d, conics, opacities, depths, radii = (
+        proj.means2d, proj.conics, proj.opacities, proj.depths, proj.radii
+    )  # fmt: skip
+    C = means2d.shape[0]
+    out = torch.full((C, height, width), float("nan"), dtype=means2d.dtype)
+    rows = torch.arange(TILE, dtype=torch.int64)
+    with torch.no_grad():
+        for ci in range(C):
+            bins = bin_gaussians(means2d[ci], depths[ci], radii[ci], width, height)
+            offsets = bins.offsets.tolist()
+            for t in range(len(offsets) - 1):
+                if offsets[t + 1] == offsets[t]:
+                    continue
+                ids = bins.gauss_ids[offsets[t] : offsets[t + 1]]
+                gidx = ids[None, :].expand(TILE, -1)
+                x0, y0 = (t % bins.tiles_x) * TILE, (t // bins.tiles_x) * TILE
+                units = (gidx, torch.ones_like(gidx, dtype=torch.bool), torch.full((TILE,), x0), y0 + rows)
+                alpha = _pixel_alphas(means2d[ci], conics[ci], opacities[ci], units)  # [16 rows, 16 cols, L]
+                crossed = torch.cumprod(1.0 - alpha, dim=-1) <= 1.0 - level
+                first = torch.argmax(crossed.to(torch.int8), dim=-1)
+                tile = torch.where(crossed.any(-1), depths[ci][ids][first], float("nan"))
+                h, w = min(TILE, height - y0), min(TILE, width - x0)
+                out[ci, y0 : y0 + h, x0 : x0 + w] = tile[:h, :w]
+    return out

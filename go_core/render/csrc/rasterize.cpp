@@ -32,7 +32,6 @@ constexpr int NPIX = TILE * TILE;
 constexpr int HALF = TILE / 2;
 constexpr float ALPHA_MIN = 1.0f / 255.0f;
 constexpr float ALPHA_MAX = 0.99f;
-constexpr float T_STOP = 1e-4f;
 constexpr int NP = 16;   // packed floats per Gaussian: mx my a b c o f0..f3 log(255 o) det/a b/a 1/a (pad)
 constexpr int NG = 10;   // gradient floats per (tile, Gaussian): dmx dmy da db dc do df0..df3
 
@@ -464,9 +463,12 @@ std::vector<torch::Tensor> bin_and_pack(torch::Tensor means2d, torch::Tensor con
 }
 
 // Forward compositing. Returns (feats [C,H,W,4], alpha [C,H,W,1], T_final [C,H,W], stop [C,H,W] i32).
+// A pixel stops before the Gaussian that would bring its transmittance to <= t_stop (T_STOP when rendering;
+// 0.5 for the median depth: the stopping Gaussian is the one where the ray's opacity crosses one half).
 std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor tile_offsets,
                                              torch::Tensor isect_gid, int64_t C, int64_t N, int64_t width,
-                                             int64_t height) {
+                                             int64_t height, double t_stop) {
+  const float tstop = static_cast<float>(t_stop);
   const int tiles_x = static_cast<int>((width + TILE - 1) / TILE);
   const int tiles_y = static_cast<int>((height + TILE - 1) / TILE);
   const int64_t T = int64_t(tiles_x) * tiles_y;
@@ -528,7 +530,7 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor params, torch::Tensor
         const VI use = (sigma >= 0.0f) & (al >= ALPHA_MIN) & ld<VI>(act);
         const V t = ld<V>(tr);
         const V nt = t * (1.0f - al);
-        const VI halt = use & (nt <= T_STOP);
+        const VI halt = use & (nt <= tstop);
         const VI contrib = use & ~halt;
         const V w = contrib ? al * t : V{};
         float* a0 = lane_ptr(A0[r], k);
