@@ -33,7 +33,7 @@ def _fused(depth_fn, band: bool = True, resolution: int = 64):
     views = [View(c, *depth_fn(c)) for c in cams]
     grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), resolution)
     fuse = fuse_narrow_band if band else fuse_views
-    tsdf = fuse(grid, views, FusionRule(3.0 * grid.voxel))
+    tsdf = fuse(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.5))  # alpha >= 0.5: surface
     return largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel)), grid.voxel
 
 

@@ -98,8 +98,8 @@ class FusionRule:
     (with a finite depth): a surface; the ray is empty up to where its opacity reaches ``carve_alpha``."""
 
     truncation: float
-    alpha_threshold: float = 0.5
-    carve_alpha: float = 0.5
+    alpha_threshold: float  # mesh.alpha_threshold
+    carve_alpha: float  # mesh.carve_alpha
 
     def __post_init__(self):
         if self.truncation <= 0:
