@@ -55,7 +55,12 @@ def _photo_scene(ctx, folder: Path, params: SceneParams):
     from go_core.photos.scene import PhotoSettings, read_photo_scene
     from go_core.photos.sfm import SfmSettings
 
-    masker, method = photo_masker(params.photo_masks)  # one thread, as SfM: the step repeats exactly
+    import torch
+
+    # the masks use the step's threads (u2netp's output is bit-identical at 1 and 2 threads); SfM runs on
+    # one thread: COLMAP's features, matches and mapping at 2 threads moved the poses by ~1e-3 and the
+    # focal length by 4 px on photos/ethiopian_head, so only one thread repeats exactly
+    masker, method = photo_masker(params.photo_masks, threads=torch.get_num_threads())
     sfm = SfmSettings(
         matcher=params.pose_matcher,
         max_features=params.sfm_features,

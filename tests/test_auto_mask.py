@@ -74,6 +74,16 @@ def test_u2netp_output_matches_the_original_runtime():
     assert 0.3 < (sal > 0.5).mean() < 0.5
 
 
+def test_u2netp_output_does_not_depend_on_the_thread_count():
+    """The scene step runs u2netp on the step's threads and still repeats exactly (its cache key holds no
+    thread count): ONNX Runtime splits the work, not the sums."""
+    one = _u2netp_or_skip()
+    two = load_segmenter(threads=2)
+    image = np.load(REFERENCE)["image"]
+    assert np.array_equal(one.raw(image), two.raw(image))
+    assert np.array_equal(one(image), two(image))
+
+
 # Post-processing ------------------------------------------------------------------------------------------
 def test_largest_component_and_hole_filling():
     m = np.zeros((12, 12), bool)
