@@ -50,12 +50,12 @@ PHOTO_VIEWS = 4  # training views chosen from a photo folder when scene.views is
 
 def _photo_scene(ctx, folder: Path, params: SceneParams):
     """A folder of photos without poses: masks, SfM on every photo, the training views (go_core.photos)."""
+    import torch
+
     from go_core.io.atomic import atomic_write_json
     from go_core.photos.masks import photo_masker
     from go_core.photos.scene import PhotoSettings, read_photo_scene
     from go_core.photos.sfm import SfmSettings
-
-    import torch
 
     # the masks use the step's threads (u2netp's output is bit-identical at 1 and 2 threads); SfM runs on
     # one thread: COLMAP's features, matches and mapping at 2 threads moved the poses by ~1e-3 and the
