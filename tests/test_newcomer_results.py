@@ -162,6 +162,19 @@ def test_missing_extra_is_one_clear_error(monkeypatch):
         require_extra("sd15", "the SD1.5 repair")
 
 
+def test_batch_without_ray_says_how_to_install_it_in_one_line(monkeypatch, capsys, tmp_path):
+    from go_pipeline.cli import main
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if the [ray] extra were not installed
+    assert main(["batch", str(tmp_path)]) == 2
+    out = capsys.readouterr()
+    assert out.out == ""
+    assert out.err.splitlines() == [
+        "error: go-pipeline batch (scenes on Ray) needs the optional package(s) ray: "
+        "pip install 'go-pipeline[ray]'"
+    ]
+
+
 def test_readme_says_which_tests_skip_on_a_fresh_clone():
     text = " ".join((REPO / "README.md").read_text().split())
     assert "shared data" in text and "skip" in text and "fresh clone" in text
