@@ -4,7 +4,9 @@
         --out benchmarks/results/photo_masks.json [--methods grabcut u2netp_raw auto auto_box auto_box_poses]
 
 Methods (the product's code; ``reference/`` is read for scoring and for the simulated user's box only):
-* ``grabcut``: GrabCut seeded by the image border (``mask.method: grabcut``, the baseline);
+* ``grabcut``: GrabCut seeded by the image border, as the product runs it on photos
+  (``scene.photo_masks: grabcut``, and ``auto`` without the u2netp weights: ``grabcut_photo_mask``, at
+  ``GRABCUT_SIZE`` px, the mask scaled back): the baseline;
 * ``u2netp_raw``: u2netp on the whole photo at 320², threshold 0.5, nothing else;
 * ``auto``: ``go_core.scene.auto_mask.auto_mask`` with the default settings, no hint;
 * ``auto_vote``: the ``auto`` masks of all photos made consistent through the camera poses
@@ -31,6 +33,7 @@ import cv2
 import numpy as np
 
 from go_core.camera import Camera
+from go_core.photos.masks import grabcut_photo_mask
 from go_core.scene.auto_mask import (
     AutoMaskSettings,
     auto_mask,
@@ -39,7 +42,6 @@ from go_core.scene.auto_mask import (
     hull_vote_masks,
     load_segmenter,
 )
-from go_core.scene.masking import grabcut_mask
 from go_core.scene.object_hint import ObjectBox
 
 METHODS = ("grabcut", "u2netp_raw", "auto", "auto_vote", "auto_refine", "auto_box", "auto_box_poses")
@@ -102,7 +104,7 @@ def run_method(method: str, args, names, images, refs, made: dict) -> dict:
     masks, t0 = {}, time.time()
     for name, image, box in zip(names, images, boxes, strict=True):
         if method == "grabcut":
-            masks[name] = grabcut_mask(image) > 0.5
+            masks[name] = grabcut_photo_mask(image) > 0.5
         elif method == "u2netp_raw":
             masks[name] = segmenter(image) > 0.5
         else:
