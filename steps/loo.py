@@ -23,7 +23,7 @@ import numpy as np
 
 from go_core import artifacts as art
 from go_core.errors import SceneError
-from go_core.repair.loo import load_clean_and_mask, load_run, run_is_done, run_job, run_one
+from go_core.repair.loo import downscaled, load_clean_and_mask, load_run, run_is_done, run_job, run_one
 from go_core.repair.noise import difference_stats
 
 if TYPE_CHECKING:
@@ -41,6 +41,7 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
     init = art.read_gaussians(inputs["hull"])
     settings = params  # LooSettings with the coarse step's settings (params.coarse)
     extent = scene_extent([v.camera for v in views])
+    trained = downscaled(views, params.train_size)  # renders and clean photos stay at full size
     workers = params.workers
     run_dirs = [Path(ctx.checkpoint_dir) / f"run_{k:02d}" for k in range(len(views))]
     pending = [k for k, d in enumerate(run_dirs) if not run_is_done(d)]
@@ -53,7 +54,8 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
         jobs = [
             {
                 "index": k,
-                "views": views,
+                "views": trained,
+                "shown": views[k],
                 "init": init,
                 "settings": settings,
                 "seed": ctx.seed,
@@ -80,7 +82,9 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
                     inner["bar"] = ctx.progress(total, what, completed=step - 1)
                 inner["bar"].advance(1, loss=info["loss"], gaussians=info["n"])
 
-            run_one(k, views, init, settings, ctx.seed, run_dirs[k], extent, on_progress=tick)
+            run_one(
+                k, trained, init, settings, ctx.seed, run_dirs[k], extent, on_progress=tick, shown=views[k]
+            )
             if "bar" in inner:
                 inner["bar"].close()
             progress.advance()

@@ -117,3 +117,29 @@ def test_compressed_schedule_scales_every_step_schedule_to_phase_one():
     assert (c.floater_from, c.floater_until, c.floater_every) == (50, 600, 50)
     assert c.densify_grad_threshold == base.densify_grad_threshold and c.feature_lr == base.feature_lr
     assert base.compressed(20_000) == replace(base, iterations=20_000)  # never stretched
+
+
+def test_runs_on_downscaled_views_keep_their_renders_and_photos_at_full_size(done, tmp_path):
+    """loo.train_size: the runs train on views at half size; the left-out view is rendered, and its photo
+    kept, at full size, so the pairs look as without it (and the same photos are the clean images)."""
+    from go_pipeline.steps import loo
+
+    from go_core.repair.data import training_views
+    from go_core.repair.loo import downscaled
+
+    root, dirs, full_ctx = done
+    _, views = training_views(dirs["scene"], dirs.get("mask"), dirs["coarse"])
+    small = downscaled(views, 32)
+    assert [(v.camera.width, v.camera.height) for v in small] == [(32, 32)] * len(views)
+    assert np.allclose(small[0].camera.K[:2], views[0].camera.K[:2] * 0.5)
+    assert torch.allclose(small[0].image, views[0].image.reshape(32, 2, 32, 2, 3).mean((1, 3)), atol=1e-6)
+    assert downscaled(views, 64)[0] is views[0] and downscaled(views, 0)[0] is views[0]
+
+    ctx = FakeCtx(tmp_path, "loo")
+    loo.run(ctx, dirs, step_params(loo.__name__, {**PARAMS, "train_size": 32}))
+    with np.load(ctx.out_dir / "loo_pairs.npz") as data, np.load(full_ctx.out_dir / "loo_pairs.npz") as full:
+        assert data["degraded_0_2"].shape == (64, 64, 3)
+        assert np.array_equal(data["clean_0"], full["clean_0"]) and np.array_equal(
+            data["mask_0"], full["mask_0"]
+        )
+        assert not np.array_equal(data["degraded_0_2"], full["degraded_0_2"])  # trained on other pixels

@@ -59,9 +59,12 @@ def run_one(
     run_dir: Path,
     extent: float,
     on_progress=None,
+    shown=None,
 ) -> LooRun:
     """Run (or resume, or just load) the leave-one-out run for view ``index``. ``on_progress(step, info)``
-    after each iteration, counting phase 1 then phase 2 (``optimize``'s info: loss, n, ...)."""
+    after each iteration, counting phase 1 then phase 2 (``optimize``'s info: loss, n, ...). ``shown``: the
+    left-out view at the size its renders and its clean photo are kept (default ``views[index]``; differs
+    when the runs train on downscaled views, ``downscaled``)."""
     from go_core.coarse.loop import NoDensify, optimize
     from go_core.io.checkpoint import CheckpointSpec
 
@@ -69,7 +72,7 @@ def run_one(
     done = run_dir / "done.json"
     if done.is_file():
         return load_run(run_dir)
-    left = views[index]
+    left = views[index] if shown is None else shown
     others = [v for i, v in enumerate(views) if i != index]
     gen = torch_generator(int(seed), "loo", index)
     cfg1 = settings.phase1_config()
@@ -141,6 +144,30 @@ def run_one(
     return load_run(run_dir)
 
 
+def downscaled(views: list, max_size: int) -> list:
+    """The training views with their long side at most ``max_size`` (area filter; 0: unchanged): the runs
+    are cheaper to train, and the compact repair model sees their renders in 256-px frames downscaled 4x."""
+    from go_core.coarse.loop import TrainView
+    from go_core.scene.common import resize_view
+    from go_core.scene.types import View
+
+    out = []
+    for v in views:
+        if max_size <= 0 or max(v.camera.width, v.camera.height) <= max_size:
+            out.append(v)
+            continue
+        if v.depth is not None:
+            raise ValueError("downscaled: views with a depth prior are not supported")
+        mask = None if v.mask is None else v.mask.numpy()
+        small = resize_view(View(v.camera, v.image.numpy(), mask), max_size)
+        out.append(
+            TrainView.from_arrays(
+                small.camera, small.image, small.mask, weight=v.weight, mask_weight=v.mask_weight
+            )
+        )
+    return out
+
+
 def run_is_done(run_dir: Path) -> bool:
     """The run in ``run_dir`` finished (its last file is written)."""
     return (Path(run_dir) / "done.json").is_file()
@@ -179,5 +206,6 @@ def run_job(job: dict) -> str:
         job["seed"],
         Path(job["run_dir"]),
         job["extent"],
+        shown=job.get("shown"),
     )
     return job["run_dir"]

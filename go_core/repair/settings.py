@@ -18,6 +18,12 @@ class LooSettings:
     renders: int = setting(10, ge=1, doc="renders of the left-out view kept as degraded images (phase 2)")
     checkpoint_every: int = setting(500, ge=0, doc="mid-run checkpoints (each finished run is kept too)")
     compress_schedule: bool = setting(True, doc="phase 1 runs the coarse schedules scaled to its length")
+    train_size: int = setting(
+        0,
+        ge=0,
+        doc="train the runs on the views downscaled to this long side (0: as they are); the left-out "
+        "view is rendered, and its photo kept, at full size",
+    )
     backend: Backend = setting("auto", doc="auto: the coarse step's backend")
     coarse: CoarseConfig = setting(default_factory=CoarseConfig, doc="the coarse step's settings")
 
