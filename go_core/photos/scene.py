@@ -3,7 +3,9 @@
 1. Photos are read upright (EXIF) at ``photo_size`` (``go_core.photos.folder``), and again at ``sfm_size``
    for SfM when that is larger; unreadable photos, too few photos and duplicates are errors naming the
    files.
-2. Masks: a photo's own alpha when every photo has one, else ``masker`` (the auto masks) on every photo.
+2. Masks: a photo's own alpha when every photo has one, else ``masker`` (the auto masks) on every photo,
+   both at ``MASK_SIZE`` whatever ``photo_size`` is (SfM restricts its features to them, so the poses, the
+   registered photos and the training views do not depend on the training size); scaled to ``photo_size``.
 3. SfM (``go_core.photos.sfm``) at ``sfm_size``: first with features inside the masks (works for a
    turntable, whose background is static relative to the camera, and for a walk around a static object),
    then, when that result fails a check, on whole images (a static object on a textured background). The
@@ -44,6 +46,7 @@ from go_core.scene.common import Distortion, Problems, _undistort
 from go_core.scene.types import Scene, View
 
 DOCS = "docs/photos.md"
+MASK_SIZE = 512  # long side the masks are made at (u2netp sees 320² crops of it), whatever photo_size is
 
 
 @dataclass(frozen=True)
@@ -142,7 +145,7 @@ def _resize(a: np.ndarray, long_side: int) -> np.ndarray:
 
 
 def _resize_to(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``mask`` at exactly ``shape`` (the masks are made at the photo size, SfM may read larger images)."""
+    """``mask`` at exactly ``shape`` (masks are made at ``MASK_SIZE``; SfM and training use other sizes)."""
     import cv2
 
     if mask.shape[:2] == tuple(shape):
@@ -303,7 +306,11 @@ def read_photo_scene(
     progress = progress or _quiet_progress
     files = scan_photo_folder(root, settings.views, Problems(strict=True))
     images, alphas = _read_all(files, settings.photo_size, progress)
-    masks, mask_source = _masks(images, alphas, masker, progress)
+    at_mask_size = (
+        (images, alphas) if settings.photo_size == MASK_SIZE else _read_all(files, MASK_SIZE, progress)
+    )
+    masks, mask_source = _masks(*at_mask_size, masker, progress)
+    del at_mask_size
     groups = camera_groups(files)
     sfm_images = _sfm_images(files, images, settings)
     focal = [f.focal_px(max(img.shape[:2])) for f, img in zip(files, sfm_images, strict=True)]
@@ -318,7 +325,7 @@ def read_photo_scene(
         i: _posed_view(
             names[i],
             images[i],
-            masks[i],
+            _resize_to(masks[i], images[i].shape[:2]),
             cams[names[i]],
             out.radial_k1[names[i]],
             settings.sfm_size,
