@@ -253,3 +253,37 @@ def test_sfm_reads_the_photos_at_sfm_size_when_larger_than_the_photo_size(captur
             read_photo_scene(folder.parent, PhotoSettings(4, photo_size, sfm_size, 0.9, sfm), np.ones_like)
         assert {shape for shape, _ in seen} == {(expected, expected)}, (photo_size, sfm_size)
         assert all(image == mask for image, mask in seen)
+
+
+def test_sfm_sees_the_same_masks_whatever_the_photo_size(tmp_path, monkeypatch):
+    """Masks are made at MASK_SIZE and scaled: a run at photo_size 64 and one at 128 give SfM the same
+    masks (at 64 px the masker saw other pixels, so a 320 px run posed other photos than a 512 px run)."""
+    import go_core.photos.scene as photo_scene
+    from go_core.errors import PoseCheckError
+    from go_core.io.images import write_png
+    from tests._photo_capture import render_sphere, ring_cameras
+
+    folder = tmp_path / "images"  # 256-px photos without alpha: below MASK_SIZE, masked as they are
+    folder.mkdir()
+    for k, cam in enumerate(ring_cameras(10)):
+        rgb, mask = render_sphere(cam, 0)
+        write_png(folder / f"IMG_{k:04d}.png", rgb * mask[..., None] + (1.0 - mask[..., None]))
+    seen: dict[int, list] = {}
+    sizes: dict[int, set] = {}
+
+    def record(photos, settings, **kwargs):
+        seen[current].extend(p.mask.copy() for p in photos)
+        raise PoseCheckError("stop here")
+
+    def masker(image):
+        sizes[current].add(image.shape[:2])
+        return (image.mean(axis=2) < 0.9).astype(np.float32)  # the sphere on white
+
+    monkeypatch.setattr(photo_scene, "run_sfm", record)
+    sfm = SfmSettings("sift", 256, 6)
+    for current in (64, 128):
+        seen[current], sizes[current] = [], set()
+        with pytest.raises(SceneError, match="stop here"):
+            read_photo_scene(folder.parent, PhotoSettings(4, current, 200, 0.9, sfm), masker)
+    assert sizes[64] == sizes[128] == {(256, 256)}
+    assert all(np.array_equal(a, b) for a, b in zip(seen[64], seen[128], strict=True)) and seen[64]
