@@ -306,11 +306,11 @@ def read_photo_scene(
     progress = progress or _quiet_progress
     files = scan_photo_folder(root, settings.views, Problems(strict=True))
     images, alphas = _read_all(files, settings.photo_size, progress)
-    at_mask_size = (
-        (images, alphas) if settings.photo_size == MASK_SIZE else _read_all(files, MASK_SIZE, progress)
-    )
-    masks, mask_source = _masks(*at_mask_size, masker, progress)
-    del at_mask_size
+    if settings.photo_size == MASK_SIZE:
+        masks, mask_source = _masks(images, alphas, masker, progress)
+    else:  # read again at MASK_SIZE (the duplicate check above already ran on these files)
+        rgb, alpha = zip(*(read_photo(f, MASK_SIZE) for f in files), strict=True)
+        masks, mask_source = _masks(list(rgb), list(alpha), masker, progress)
     groups = camera_groups(files)
     sfm_images = _sfm_images(files, images, settings)
     focal = [f.focal_px(max(img.shape[:2])) for f, img in zip(files, sfm_images, strict=True)]
