@@ -57,14 +57,16 @@ def _photo_scene(ctx, folder: Path, params: SceneParams):
     from go_core.photos.scene import PhotoSettings, read_photo_scene
     from go_core.photos.sfm import SfmSettings
 
-    # the masks use the step's threads (u2netp's output is bit-identical at 1 and 2 threads); SfM runs on
-    # one thread: COLMAP's features, matches and mapping at 2 threads moved the poses by ~1e-3 and the
-    # focal length by 4 px on photos/ethiopian_head, so only one thread repeats exactly
-    masker, method = photo_masker(params.photo_masks, threads=torch.get_num_threads())
+    # the masks and the SIFT matching use the step's threads (bit-identical at 1 and 2 threads); SIFT
+    # extraction and mapping run on one: at 2 threads they moved the poses by ~1e-3 and the focal length
+    # by 4 px on photos/ethiopian_head (tests/test_photos.py holds both facts)
+    threads = torch.get_num_threads()
+    masker, method = photo_masker(params.photo_masks, threads=threads)
     sfm = SfmSettings(
         matcher=params.pose_matcher,
         max_features=params.sfm_features,
         window=params.sfm_window,
+        matching_threads=threads,
         seed=int(ctx.seed),
     )
     settings = PhotoSettings(

@@ -40,7 +40,8 @@ class SfmSettings:
     window: int  # sequential pairs: each photo with the next ``window``
     exhaustive_max: int = 40  # every pair up to this many photos
     mask_dilate_px: int = 8  # features this far outside the mask still count (silhouette edges)
-    num_threads: int = 1  # 1: COLMAP's results repeat exactly
+    num_threads: int = 1  # features and mapping; 1: COLMAP's SIFT features and poses repeat exactly
+    matching_threads: int = 1  # SIFT matching + verification, per pair: identical at any count
     seed: int = 0
 
 
@@ -197,7 +198,7 @@ def _extract_disk(photos, work, names, use_masks, settings, camera_ids, advance)
     store = {}
     try:
         ids = {img.name: img.image_id for img in db.read_all_images()}
-        with torch.no_grad(), _torch_threads(settings.num_threads):
+        with torch.no_grad(), _torch_threads(1):  # torch may sum in another order at other counts
             for i, p in enumerate(photos):
                 ((f, size),) = disk_features(
                     disk, [p], min(settings.max_features, 2048), settings.mask_dilate_px, use_masks
@@ -226,7 +227,7 @@ def _match(work, names, pairs, settings, advance) -> None:
         pycolmap.verify_matches(db_path, pairs_path, options=_verification(settings.seed))
         return
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = settings.num_threads
+    matching.num_threads = settings.matching_threads
     matching.use_gpu = False
     chunk = 64
     for start in range(0, len(pairs), chunk):
@@ -262,7 +263,7 @@ def _match_disk(work, names, pairs, settings, advance) -> None:
         def feats(i):
             return (torch.from_numpy(store[f"{i}_{k}"]) for k in ("xy", "desc", "size"))
 
-        with torch.no_grad(), _torch_threads(settings.num_threads):
+        with torch.no_grad(), _torch_threads(1):  # torch may sum in another order at other counts
             for i, j in pairs:
                 xi, di, si = feats(i)
                 xj, dj, sj = feats(j)
