@@ -57,15 +57,16 @@ def _photo_scene(ctx, folder: Path, params: SceneParams):
     from go_core.photos.scene import PhotoSettings, read_photo_scene
     from go_core.photos.sfm import SfmSettings
 
-    # the masks and the SIFT matching use the step's threads (bit-identical at 1 and 2 threads); SIFT
-    # extraction and mapping run on one: at 2 threads they moved the poses by ~1e-3 and the focal length
-    # by 4 px on photos/ethiopian_head (tests/test_photos.py holds both facts)
+    # the masks, SIFT extraction (one photo subset per thread) and matching use the step's threads:
+    # bit-identical at 1 and 2 (tests/test_photos.py); the mapper runs on one: its bundle adjustments at 2
+    # threads, like COLMAP's own extraction threads, moved the poses by ~1e-3 on photos/ethiopian_head
     threads = torch.get_num_threads()
     masker, method = photo_masker(params.photo_masks, threads=threads)
     sfm = SfmSettings(
         matcher=params.pose_matcher,
         max_features=params.sfm_features,
         window=params.sfm_window,
+        extraction_workers=threads,
         matching_threads=threads,
         seed=int(ctx.seed),
     )

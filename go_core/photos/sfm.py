@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
+import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,7 +43,10 @@ class SfmSettings:
     window: int  # sequential pairs: each photo with the next ``window``
     exhaustive_max: int = 40  # every pair up to this many photos
     mask_dilate_px: int = 8  # features this far outside the mask still count (silhouette edges)
-    num_threads: int = 1  # features and mapping; 1: COLMAP's SIFT features and poses repeat exactly
+    num_threads: int = 1  # the mapper's; 1: COLMAP's poses repeat exactly
+    extraction_workers: int = (
+        1  # SIFT on this many photo subsets at once, one thread each: identical features
+    )
     matching_threads: int = 1  # SIFT matching + verification, per pair: identical at any count
     seed: int = 0
 
@@ -151,30 +157,88 @@ def _extract(photos, work, names, use_masks, settings, advance) -> None:
     if settings.matcher == "disk":
         _extract_disk(photos, work, names, use_masks, settings, camera_ids, advance)
         return
+    _import_images(photos, work, names, camera_ids)
+    workers = max(1, min(settings.extraction_workers, len(photos)))
+    parts = [list(range(k, len(photos), workers)) for k in range(workers)]
+    dbs = [work / f"features_{k}.db" for k in range(len(parts))]
+    for db_k in dbs:
+        shutil.copyfile(db_path, db_k)
+    lock = threading.Lock()
+
+    def tick(k: int) -> None:
+        with lock:
+            advance(k)
+
+    def extract(k: int) -> None:
+        _extract_sift(dbs[k], work, [names[i] for i in parts[k]], use_masks, settings, tick)
+
+    with ThreadPoolExecutor(len(parts)) as pool:  # pycolmap releases the GIL while it extracts
+        list(pool.map(extract, range(len(parts))))
+    _merge_features(db_path, dbs, [[names[i] for i in part] for part in parts])
+
+
+def _import_images(photos, work, names, camera_ids) -> None:
+    """The photos into the database, per camera group in photo order (their image ids)."""
+    import pycolmap
+
+    for g, cam_id in camera_ids.items():
+        reader = pycolmap.ImageReaderOptions()
+        reader.existing_camera_id = cam_id
+        group = [names[i] for i, p in enumerate(photos) if p.group == g]
+        pycolmap.import_images(
+            work / "database.db",
+            work / "images",
+            pycolmap.CameraMode.SINGLE,
+            image_names=group,
+            options=reader,
+        )
+
+
+def _extract_sift(db_path, work, names, use_masks, settings, advance) -> None:
+    """COLMAP's SIFT on ``names`` (already in ``db_path``) on one thread, in chunks (one tick per photo)."""
+    import pycolmap
+
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = settings.num_threads
+    extraction.num_threads = 1  # COLMAP's own extraction threads change the features (tests/test_photos.py)
     extraction.use_gpu = False
     extraction.sift.max_num_features = settings.max_features
     extraction.sift.peak_threshold = PEAK_THRESHOLD
+    reader = pycolmap.ImageReaderOptions()
+    if use_masks:
+        reader.mask_path = str(work / "masks")
     chunk = 8
-    for g, cam_id in camera_ids.items():
-        group = [i for i, p in enumerate(photos) if p.group == g]
-        for start in range(0, len(group), chunk):
-            part = group[start : start + chunk]
-            reader = pycolmap.ImageReaderOptions()
-            reader.existing_camera_id = cam_id
-            if use_masks:
-                reader.mask_path = str(work / "masks")
-            pycolmap.extract_features(
-                db_path,
-                work / "images",
-                image_names=[names[i] for i in part],
-                camera_mode=pycolmap.CameraMode.SINGLE,
-                reader_options=reader,
-                extraction_options=extraction,
-                device=pycolmap.Device.cpu,
-            )
-            advance(len(part))
+    for start in range(0, len(names), chunk):
+        part = names[start : start + chunk]
+        pycolmap.extract_features(
+            db_path,
+            work / "images",
+            image_names=part,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+        advance(len(part))
+
+
+def _merge_features(db_path, dbs, names) -> None:
+    """Keypoints and descriptors of each worker's photos from its database into ``db_path``."""
+    import pycolmap
+
+    db = pycolmap.Database.open(db_path)
+    try:
+        ids = {img.name: img.image_id for img in db.read_all_images()}
+        for db_k, part in zip(dbs, names, strict=True):
+            src = pycolmap.Database.open(db_k)
+            try:
+                for name in part:
+                    db.write_keypoints(ids[name], src.read_keypoints(ids[name]))
+                    db.write_descriptors(ids[name], src.read_descriptors(ids[name]))
+            finally:
+                src.close()
+            Path(db_k).unlink()
+    finally:
+        db.close()
 
 
 def _extract_disk(photos, work, names, use_masks, settings, camera_ids, advance) -> None:
@@ -186,13 +250,7 @@ def _extract_disk(photos, work, names, use_masks, settings, camera_ids, advance)
     from go_core.poses.matching import _torch_threads, disk_features
 
     db_path = work / "database.db"
-    for g, cam_id in camera_ids.items():
-        reader = pycolmap.ImageReaderOptions()
-        reader.existing_camera_id = cam_id
-        group = [names[i] for i, p in enumerate(photos) if p.group == g]
-        pycolmap.import_images(
-            db_path, work / "images", pycolmap.CameraMode.SINGLE, image_names=group, options=reader
-        )
+    _import_images(photos, work, names, camera_ids)
     disk = load_disk()
     db = pycolmap.Database.open(db_path)
     store = {}
