@@ -43,7 +43,12 @@ class SceneParams:
     pose_matcher: Literal["sift", "disk"] = setting(
         "sift", doc="features for poses: estimate, and for SfM on a folder of photos"
     )
-    photo_size: int = setting(512, ge=64, doc="photo folder: long side of the training and test images")
+    photo_size: int = setting(
+        256,
+        ge=64,
+        doc="photo folder: long side of the training and test images (256: the size of the dev renders, "
+        "at which every default of the chain was chosen; speed vs error in docs/photos.md)",
+    )
     sfm_size: int = setting(
         800,
         ge=64,
