@@ -99,11 +99,16 @@ def own_usage() -> dict[str, float]:
     """CPU seconds and peak memory of this process alone, and the one-time rasterizer build time in it.
 
     The parent's wait4 figures also cover this process's children: a step that triggers the one-time C++
-    build of the rasterizer would otherwise report the compiler's ~1.5 GB and CPU time as its own.
+    build of the rasterizer would otherwise report the compiler's ~1.5 GB and CPU time as its own. The CPU
+    time of the step's own worker processes (loo's parallel runs) counts, unless the build ran in it.
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    built = rasterizer_build_seconds() > 0
     return {
-        "self_cpu_s": usage.ru_utime + usage.ru_stime,
+        "self_cpu_s": usage.ru_utime
+        + usage.ru_stime
+        + (0.0 if built else children.ru_utime + children.ru_stime),
         "self_peak_mb": _peak_rss_mb(usage),
         "build_s": rasterizer_build_seconds(),
     }

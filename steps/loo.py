@@ -6,8 +6,11 @@ continued with all N views on a fixed set (phase 2); renders of the left-out vie
 degraded images, the left-out photo (on white) the clean one. Statistics: per-attribute, per-channel mean
 and std of (phase-2 − phase-1) parameter differences, pooled over the runs.
 
-Runs are independent: ``workers`` > 1 runs them in parallel processes (default 1: sequential, the 2-core
-case). Each finished run is kept in ``ctx.checkpoint_dir`` so a killed step resumes where it was.
+Runs are independent: on a CPU they run in parallel processes, one per thread of the step (``workers`` 0,
+``loo_workers``), each on its share of the threads: on 2 cores 1.22x faster than one process on 2 threads
+(photos/ethiopian_head at 256 px: 238 vs 290 s), with bit-identical artifacts (the rasterizer's sums do
+not depend on the thread count). Each finished run is kept in ``ctx.checkpoint_dir`` so a killed step
+resumes where it was.
 
 Outputs: ``loo.json`` (runs, statistics, pair index), ``loo_pairs.npz`` (``degraded_<k>_<j>``,
 ``clean_<k>``, ``mask_<k>`` uint8 arrays).
@@ -30,7 +33,21 @@ if TYPE_CHECKING:
     from go_pipeline.steps.params import LooParams
 
 
+def loo_workers(requested: int, runs: int, device: str, threads: int) -> tuple[int, int]:
+    """(processes, threads each) for ``runs`` leave-one-out runs: ``requested`` processes, or with 0 one
+    per thread on a CPU (at most one per run) and one on CUDA; the threads are shared out evenly."""
+    if requested > 0:
+        workers = requested
+    elif device.startswith("cuda"):
+        workers = 1
+    else:
+        workers = max(1, min(runs, threads))
+    return workers, max(1, threads // workers)
+
+
 def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
+    import torch
+
     from go_core.coarse.loop import scene_extent
     from go_core.io.npz import write_npz_deterministic
     from go_core.repair.data import training_views
@@ -42,7 +59,7 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
     settings = params  # LooSettings with the coarse step's settings (params.coarse)
     extent = scene_extent([v.camera for v in views])
     trained = downscaled(views, params.train_size)  # renders and clean photos stay at full size
-    workers = params.workers
+    workers, threads = loo_workers(params.workers, len(views), str(ctx.device), torch.get_num_threads())
     run_dirs = [Path(ctx.checkpoint_dir) / f"run_{k:02d}" for k in range(len(views))]
     pending = [k for k, d in enumerate(run_dirs) if not run_is_done(d)]
     ctx.log.info("leave-one-out: %d runs (%d to do), %d worker(s)", len(views), len(pending), workers)
@@ -61,7 +78,7 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
                 "seed": ctx.seed,
                 "run_dir": str(run_dirs[k]),
                 "extent": extent,
-                "threads": 1,
+                "threads": threads,
             }
             for k in pending
         ]

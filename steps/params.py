@@ -154,7 +154,12 @@ class WeightsParams:
 class LooParams(LooSettings):
     """The leave-one-out runs (go_core.repair.settings.LooSettings) with the coarse step's settings."""
 
-    workers: int = setting(1, ge=1, doc=">1: run the N independent runs in parallel processes")
+    workers: int = setting(
+        0,
+        ge=0,
+        doc="processes for the N independent runs (0: auto, one per thread of the step on a CPU, one on "
+        "CUDA; the artifacts are bit-identical for any count)",
+    )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
 
 

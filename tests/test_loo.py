@@ -143,3 +143,13 @@ def test_runs_on_downscaled_views_keep_their_renders_and_photos_at_full_size(don
             data["mask_0"], full["mask_0"]
         )
         assert not np.array_equal(data["degraded_0_2"], full["degraded_0_2"])  # trained on other pixels
+
+
+def test_loo_workers_auto_is_one_process_per_thread_on_a_cpu_and_one_on_cuda():
+    from go_pipeline.steps.loo import loo_workers
+
+    assert loo_workers(0, 4, "cpu", 2) == (2, 1)  # the 2-core case: two runs at a time, one thread each
+    assert loo_workers(0, 4, "cpu", 16) == (4, 4)  # never more processes than runs; threads shared out
+    assert loo_workers(0, 4, "cpu", 1) == (1, 1)
+    assert loo_workers(0, 4, "cuda:0", 16) == (1, 16)
+    assert loo_workers(3, 4, "cpu", 2) == (3, 1)  # asked for: as asked
