@@ -43,22 +43,32 @@ def _cli(scene: Path, sets: list[str], log: Path, until: str = "") -> tuple[int,
     return rc, time.perf_counter() - start
 
 
+def last_run(folder: Path) -> dict:
+    """The ``.go/runs/last.json`` record of the last run in ``folder``."""
+    return json.loads((folder / ".go" / "runs" / "last.json").read_text())
+
+
+def step_artifact(last: dict, step: str) -> Path | None:
+    """The artifact folder of ``step`` in a run record (None when the step made none)."""
+    return next(
+        (Path(s["artifact_dir"]) for s in last["steps"] if s["name"] == step and s.get("artifact_dir")), None
+    )
+
+
 def _run_facts(scene: Path) -> dict:
     """Per-step wall time and status, the test metrics and the scene artifact folder of the last run."""
-    go = scene / ".go"
-    last = json.loads((go / "runs" / "last.json").read_text())
+    last = last_run(scene)
     steps = {
         s["name"]: {"status": s["status"], "wall_s": round(s.get("wall_s") or 0.0, 1)} for s in last["steps"]
     }
-    scene_dir = next(Path(s["artifact_dir"]) for s in last["steps"] if s["name"] == "scene")
-    metrics_path = go / "outputs" / "metrics.json"
+    metrics_path = scene / ".go" / "outputs" / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
     return {
         "wall_s": round(last.get("wall_s") or 0.0, 1),
         "steps": steps,
         "metrics": metrics.get("mean"),
         "model": metrics.get("model"),
-        "scene_artifact": scene_dir,
+        "scene_artifact": step_artifact(last, "scene"),
     }
 
 

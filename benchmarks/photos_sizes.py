@@ -23,19 +23,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from photos import last_run, step_artifact  # benchmarks/photos.py
 
 OUT = Path(__file__).resolve().parent / "results" / "photos_sizes_ethiopian_head.json"
-
-
-def _last_run(folder: Path) -> dict:
-    return json.loads((folder / ".go" / "runs" / "last.json").read_text())
-
-
-def _artifact(last: dict, step: str) -> Path | None:
-    for s in last["steps"]:
-        if s["name"] == step and s.get("artifact_dir"):
-            return Path(s["artifact_dir"])
-    return None
 
 
 def _same_poses(a: list, b: list) -> float:
@@ -50,8 +40,8 @@ def score(model_run: Path, scene, cameras, suite) -> dict:
     from go_core import artifacts as art
     from go_core.metrics.evaluate import mean_metrics
 
-    last = _last_run(model_run)
-    final = art.final_model(_artifact(last, "coarse"), _artifact(last, "repair"))
+    last = last_run(model_run)
+    final = art.final_model(step_artifact(last, "coarse"), step_artifact(last, "repair"))
     gaussians = art.read_gaussians(final.folder)
     renders = render_views(gaussians, cameras, "cpu", "auto")
     per_view = evaluate_scene(scene, renders, suite, masked=False, gts=ground_truths(scene))
@@ -74,7 +64,7 @@ def main() -> int:
     from go_core.metrics.evaluate import MetricSuite
     from go_core.scene.artifact import load_scene_cameras
 
-    scene_dir = _artifact(_last_run(args.score_on), "scene")
+    scene_dir = step_artifact(last_run(args.score_on), "scene")
     scene = art.read_scene(scene_dir)
     size = max(scene.test_cameras[0].width, scene.test_cameras[0].height)
     suite = MetricSuite.load(("vgg",))
@@ -85,8 +75,8 @@ def main() -> int:
     for spec in args.run:
         label, folder = spec.split("=", 1)
         folder = Path(folder)
-        last = _last_run(folder)
-        train, _ = load_scene_cameras(_artifact(last, "scene"))
+        last = last_run(folder)
+        train, _ = load_scene_cameras(step_artifact(last, "scene"))
         factor = size / max(train[0].width, train[0].height)
         pose_diff = _same_poses([c.scaled(factor) for c in train], scene.train_cameras)
         if pose_diff > 1e-6:
