@@ -131,7 +131,20 @@ def _voted_masks(views: dict[int, View]) -> dict[int, View]:
         voted = hull_vote_masks([views[k].mask for k in keys], [views[k].camera for k in keys])
     except EmptyHullError:
         return views
-    return {k: replace(views[k], mask=m) for k, m in zip(keys, voted, strict=True)}
+    return {k: replace(views[k], mask=soft_edges(views[k].mask, m)) for k, m in zip(keys, voted, strict=True)}
+
+
+def soft_edges(soft: np.ndarray, binary: np.ndarray) -> np.ndarray:
+    """``binary`` (a voted {0, 1} mask) with the anti-aliased edge of ``soft`` (the same mask before the
+    vote, area-scaled to the photo size): 1 inside ``binary`` shrunk by one pixel, ``soft`` in the band of
+    a pixel on each side of its edge, 0 beyond (holes the vote filled stay filled). A
+    binary edge is up to a pixel off the photo's own anti-aliased edge, which at 256 px cost 0.42 dB of
+    test PSNR on photos/ethiopian_head (reference masks scored binarised vs as they are)."""
+    import cv2
+
+    b, square = binary.astype(np.uint8), np.ones((3, 3), np.uint8)
+    grown, core = cv2.dilate(b, square) > 0, cv2.erode(b, square) > 0
+    return np.where(core, 1.0, np.where(grown, np.clip(soft, 0.0, 1.0), 0.0)).astype(np.float32)
 
 
 def _resize(a: np.ndarray, long_side: int) -> np.ndarray:
@@ -144,13 +157,16 @@ def _resize(a: np.ndarray, long_side: int) -> np.ndarray:
     return cv2.resize(a, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)
 
 
-def _resize_to(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``mask`` at exactly ``shape`` (masks are made at ``MASK_SIZE``; SfM and training use other sizes)."""
+def _resize_to(mask: np.ndarray, shape: tuple[int, int], shrink_by_area: bool = False) -> np.ndarray:
+    """``mask`` at exactly ``shape`` (masks are made at ``MASK_SIZE``; SfM and training use other sizes);
+    ``shrink_by_area``: a smaller ``shape`` averages the pixels (anti-aliased edges, as the photo's own)."""
     import cv2
 
     if mask.shape[:2] == tuple(shape):
         return mask
-    return cv2.resize(mask, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    smaller = shape[0] * shape[1] < mask.shape[0] * mask.shape[1]
+    how = cv2.INTER_AREA if shrink_by_area and smaller else cv2.INTER_LINEAR
+    return cv2.resize(mask, (shape[1], shape[0]), interpolation=how)
 
 
 def _sfm_images(
@@ -325,7 +341,7 @@ def read_photo_scene(
         i: _posed_view(
             names[i],
             images[i],
-            _resize_to(masks[i], images[i].shape[:2]),
+            _resize_to(masks[i], images[i].shape[:2], shrink_by_area=True),
             cams[names[i]],
             out.radial_k1[names[i]],
             settings.sfm_size,
