@@ -317,3 +317,28 @@ def test_sfm_sees_the_same_masks_whatever_the_photo_size(tmp_path, monkeypatch):
             read_photo_scene(folder.parent, PhotoSettings(4, current, 200, 0.9, sfm), masker)
     assert sizes[64] == sizes[128] == {(256, 256)}
     assert all(np.array_equal(a, b) for a, b in zip(seen[64], seen[128], strict=True)) and seen[64]
+
+
+def test_voted_masks_keep_the_anti_aliased_edge():
+    """soft_edges: 1 inside the voted mask (a hole the vote filled stays filled), the area-scaled mask in the
+    one-pixel band around the vote's edge, 0 beyond it (what the vote carved away stays carved)."""
+    import cv2
+
+    from go_core.photos.scene import soft_edges
+
+    big = np.zeros((64, 64), np.float32)
+    cv2.circle(big, (30, 33), 17, 1.0, -1)
+    big[40:52, 50:62] = 1.0  # a turntable disc the vote removes
+    soft = cv2.resize(big, (32, 32), interpolation=cv2.INTER_AREA)
+    voted = (soft > 0.5).astype(np.float32)
+    voted[18:26, 24:32] = 0.0
+    hole = soft.copy()
+    hole[15, 15] = 0.0  # the salient map missed a pixel the vote fills
+    out = soft_edges(hole, voted)
+    core = cv2.erode(voted.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    band = (cv2.dilate(voted.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0) & ~core
+    assert core[15, 15] and out[15, 15] == 1.0
+    assert np.all(out[core] == 1.0) and np.all(out[~core & ~band] == 0.0)
+    np.testing.assert_array_equal(out[band], np.clip(hole[band], 0, 1))
+    assert ((out > 0) & (out < 1)).sum() > 20  # the circle's anti-aliased rim survives
+    assert out[20:26, 26:32].max() == 0.0  # the carved disc stays out
