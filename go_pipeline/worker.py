@@ -104,13 +104,12 @@ def own_usage() -> dict[str, float]:
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    built = rasterizer_build_seconds() > 0
+    build_s = rasterizer_build_seconds()
+    workers_cpu = 0.0 if build_s > 0 else children.ru_utime + children.ru_stime
     return {
-        "self_cpu_s": usage.ru_utime
-        + usage.ru_stime
-        + (0.0 if built else children.ru_utime + children.ru_stime),
+        "self_cpu_s": usage.ru_utime + usage.ru_stime + workers_cpu,
         "self_peak_mb": _peak_rss_mb(usage),
-        "build_s": rasterizer_build_seconds(),
+        "build_s": build_s,
     }
 
 

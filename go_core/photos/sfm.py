@@ -44,9 +44,7 @@ class SfmSettings:
     exhaustive_max: int = 40  # every pair up to this many photos
     mask_dilate_px: int = 8  # features this far outside the mask still count (silhouette edges)
     num_threads: int = 1  # the mapper's; 1: COLMAP's poses repeat exactly
-    extraction_workers: int = (
-        1  # SIFT on this many photo subsets at once, one thread each: identical features
-    )
+    extraction_workers: int = 1  # SIFT on photo subsets at once, one thread each: identical features
     matching_threads: int = 1  # SIFT matching + verification, per pair: identical at any count
     seed: int = 0
 
