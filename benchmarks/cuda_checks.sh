@@ -7,7 +7,7 @@
 #   .devdata/  milk/ (a copy of ../shared/data/dev/milk) and cache/ (compact/realesr-animevideov3-x4 and
 #              lpips/alex safetensors from ~/.cache/go-pipeline)
 #   .devdata/code  `git rev-parse --short HEAD`, recorded with the results
-# Then: run(command="bash benchmarks/cuda_checks.sh", carry=[".whl", ".devdata"], timeout_s=560).
+# Then: run(command="bash benchmarks/cuda_checks.sh", carry=[".whl", ".devdata"], timeout_s=590).
 # Results land in $OUT; benchmarks/results/cuda_h100.json / cuda_h200.json were written from them.
 set -u
 export PYTHONUNBUFFERED=1
@@ -36,7 +36,7 @@ el "rasterizer benchmark"
 timeout 240 python3 benchmarks/rasterizer.py --backends cuda --repeats 5 --json $OUT/rasterizer_cuda.json 2>&1 | tail -20
 el "e2e dev/milk on cuda"
 cp -r .devdata/milk /tmp/milk
-timeout $(( T0 + 500 - $(date +%s) )) python3 -c "import sys; from go_pipeline.cli import main; sys.exit(main())" run /tmp/milk --device cuda --set "eval.lpips_nets=[alex]" --until eval 2>&1 | tail -40 | tee $OUT/e2e_milk.txt
+timeout $(( T0 + 560 - $(date +%s) )) python3 -c "import sys; from go_pipeline.cli import main; sys.exit(main())" run /tmp/milk --device cuda --set "eval.lpips_nets=[alex]" --until eval 2>&1 | tail -40 | tee $OUT/e2e_milk.txt
 echo "rc=$?"
 (cd /tmp/milk/.go && tar cf $OUT/eval_json.tar outputs/metrics.json outputs/index.json $(find artifacts/eval artifacts/mesh -name "*.json" 2>/dev/null)) ; python3 -c "from go_pipeline.cli import main; main()" runs /tmp/milk > $OUT/e2e_runs.txt 2>&1
 ls /tmp/milk/.go/logs 2>/dev/null | tail -3; LOG=$(ls -t /tmp/milk/.go/logs/* 2>/dev/null | head -1); [ -n "$LOG" ] && tail -c 200000 "$LOG" > $OUT/e2e_milk_log.txt
