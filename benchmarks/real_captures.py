@@ -34,7 +34,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 CAPTURES = ("real/ethiopian_head", "real/blowtorch", "photos/ethiopian_head")
-STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "lora", "repair", "eval")
+STEPS = (  # pipeline.yaml order; a step a stage does not run (depth off, export, turntable) is left out
+    "scene",
+    "mask",
+    "depth",
+    "hull",
+    "coarse",
+    "weights",
+    "loo",
+    "noise_pairs",
+    "tune",
+    "repair",
+    "mesh",
+    "eval",
+)
 
 
 def parse_variant(text: str) -> tuple[str, dict]:
