@@ -3,7 +3,7 @@ thread, as the scene step runs it) on the product's own auto masks, for several 
 counts and pair windows; scored against ``reference/`` (evaluation only): photos posed, rotation error
 after a similarity alignment of the camera centres, focal length, seconds.
 
-The masks are the scene step's (u2netp on the photos at ``scene.photo_size``, before the pose vote),
+The masks are the scene step's (u2netp on the photos at ``MASK_SIZE``, before the pose vote),
 made once and kept in ``--tmp``, resized to the feature size; ``--masks reference`` uses the reference
 masks instead (to separate mask error from SfM error). The product ran SfM at 512 px (sfm_size 640 was
 capped by the photo size) until the scene step read the photos at the larger of the two.
@@ -29,15 +29,15 @@ OUT = Path(__file__).resolve().parent / "results" / "photos_sfm_ethiopian_head.j
 
 
 def _auto_masks(files, tmp: Path) -> list[np.ndarray]:
-    """The scene step's auto masks: u2netp on the photos read at ``scene.photo_size`` (cached in ``tmp``)."""
+    """The scene step's auto masks: u2netp on the photos read at ``MASK_SIZE`` (as the scene step makes them,
+    whatever ``scene.photo_size`` is; cached in ``tmp``)."""
     import fcntl
-
-    from go_pipeline.steps.params import SceneParams
 
     from go_core.photos.folder import read_photo
     from go_core.photos.masks import photo_masker
+    from go_core.photos.scene import MASK_SIZE
 
-    size = SceneParams().photo_size
+    size = MASK_SIZE
     cache = tmp / f"auto_masks_{size}.npz"
     tmp.mkdir(parents=True, exist_ok=True)
     with open(tmp / "masks.lock", "w") as lock:
