@@ -10,6 +10,14 @@ the shared 2-core machine): the coarse mesh stands in for the final one, and the
     python benchmarks/geometry_dev.py --scenes milk --stage train
     python benchmarks/geometry_dev.py --stage measure \\
         --out benchmarks/results/geometry_dev.json
+
+A training change (issue #35, item 4) is a named variant with coarse param overrides, cached apart:
+
+    python benchmarks/geometry_dev.py --iterations 1000 --variant dn --coarse lambda_depth_normal=0.05 \\
+        --out /tmp/geometry_dev_dn.json
+
+Each scene also gets the coarse model's test-view PSNR / SSIM / LPIPS* on white (``coarse_images``), so a
+change is judged on geometry and on images together.
 """
 
 from __future__ import annotations
@@ -22,7 +30,15 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from coarse_dev import DEV, coarse_params, hull_params, step_params_from_yaml, train_variant
+from coarse_dev import (
+    DEV,
+    coarse_params,
+    evaluate,
+    hull_params,
+    parse_overrides,
+    step_params_from_yaml,
+    train_variant,
+)
 
 from go_core.coarse.hull import hull_bounds
 from go_core.gaussians import Gaussians
@@ -38,15 +54,15 @@ SCENES = ("alphabet_soup", "basket", "milk", "plate", "white_bowl")
 KEYS = ("chamfer_l1", "fscore_1pct", "fscore_2pct", "normal_consistency", "silhouette_iou")
 
 
-def train(scene_dir: Path, cache: Path, iterations: int | None, seed: int) -> Path:
-    """The coarse model of one scene under ``cache`` (trained when missing)."""
+def train(scene_dir: Path, cache: Path, iterations: int | None, seed: int, extra: dict) -> Path:
+    """The coarse model of one scene under ``cache`` (trained when missing), ``extra`` coarse overrides."""
     path = cache / scene_dir.name / "coarse_gaussians.npz"
     if path.is_file():
         return path
     scene = load_scene(scene_dir)
     base = coarse_params(None, iterations) if iterations else step_params_from_yaml("coarse", None)
     g, stats, run = train_variant(
-        scene, "hull", base["iterations"], seed, {}, base=base, hull=hull_params(None)
+        scene, "hull", base["iterations"], seed, extra, base=base, hull=hull_params(None)
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     g.save(path)
@@ -85,9 +101,13 @@ def measure(scene_dir: Path, cache: Path, seed: int, samples: int, export_dir: P
     test_masks = [v.mask for v in scene.test]
     scores = score_meshes({"hull": hull, "coarse": coarse}, gt, scene.test_cameras, test_masks, samples, seed)
     t4 = time.perf_counter()
+    images = evaluate(g, scene)
     run = json.loads((cache / scene_dir.name / "coarse_run.json").read_text())
     return {
         **scores,
+        "coarse_images": {
+            k: images[k] for k in ("psnr", "ssim", "lpips_star", "see_through_pct") if k in images
+        },
         "mesh_info": {k: v for k, v in info.items() if k != "settings"},
         "seconds": {
             "coarse_mesh": round(t1 - t0, 2),
@@ -140,21 +160,33 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/geometry_dev.json"))
     ap.add_argument("--merge", action="store_true", help="keep --out's other scenes (same protocol)")
     ap.add_argument("--mesh", nargs="*", default=[], metavar="KEY=VALUE", help="mesh step params to change")
+    ap.add_argument("--variant", default="", help="name of a training variant (its models: --cache/NAME)")
+    ap.add_argument(
+        "--coarse", nargs="*", default=[], metavar="KEY=VALUE", help="the variant's coarse params"
+    )
     args = ap.parse_args()
     params = mesh_params(args.mesh)
+    extra = parse_overrides(args.coarse)
+    if extra and not args.variant:
+        raise SystemExit(
+            "--coarse changes training: name the variant (--variant NAME) so its models are kept apart"
+        )
+    cache = args.cache / args.variant if args.variant else args.cache
     if args.stage in ("train", "all"):
         for name in args.scenes:
-            print(f"{name}: coarse model {train(args.data / name, args.cache, args.iterations, args.seed)}")
+            print(f"{name}: coarse model {train(args.data / name, cache, args.iterations, args.seed, extra)}")
     if args.stage == "train":
         return
     protocol = {
         "seed": args.seed,
         "samples_per_surface": args.samples,
         "mesh_params": {k: getattr(params, k) for k in MeshSettings.__dataclass_fields__},
+        "variant": args.variant or "defaults",
+        "coarse_overrides": extra,
     }
     scenes = previous_scenes(args.out, protocol) if args.merge else {}
     for name in args.scenes:
-        scenes[name] = measure(args.data / name, args.cache, args.seed, args.samples, args.export, params)
+        scenes[name] = measure(args.data / name, cache, args.seed, args.samples, args.export, params)
         h, c = scenes[name]["hull"], scenes[name]["coarse"]
         print(
             f"{name:14s} chamfer hull {h['chamfer_l1']:.4f} coarse {c['chamfer_l1']:.4f}  "

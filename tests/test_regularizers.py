@@ -18,6 +18,7 @@ from go_core.coarse.regularizers import (
     drop_compensation,
     drop_rate,
     opacity_decay_loss,
+    opacity_entropy_loss,
     outside_alpha_loss,
     regularization_loss,
 )
@@ -121,6 +122,19 @@ def test_opacity_decay_value_and_gradient():
     assert torch.autograd.gradcheck(opacity_decay_loss, (logits,))
 
 
+def test_opacity_entropy_value_and_gradient():
+    logits = torch.tensor([0.0, 2.0, -3.0, 8.0], dtype=torch.float64, requires_grad=True)
+    p = torch.sigmoid(logits).detach()
+    want = float((-(p * p.log() + (1 - p) * (1 - p).log())).mean())
+    assert opacity_entropy_loss(logits).item() == pytest.approx(want, rel=1e-12)
+    assert opacity_entropy_loss(torch.zeros(3)).item() == pytest.approx(math.log(2))  # the maximum
+    assert torch.autograd.gradcheck(opacity_entropy_loss, (logits,))
+    g = opacity_entropy_loss(logits)
+    (grad,) = torch.autograd.grad(g, logits)
+    assert grad[1] < 0 < grad[2]  # opaque ones are pushed up, faint ones down; 0.5 is stationary
+    assert grad[0] == pytest.approx(0.0, abs=1e-12)
+
+
 def test_regularization_loss_sums_the_enabled_terms():
     g = Gaussians.from_points(torch.randn(6, 3), torch.rand(6, 3), torch.full((6,), 0.1), 0.5, 0)
     g.log_scales[:, 0] += 3.0
@@ -149,13 +163,18 @@ def _tiny_problem():
 def test_loop_with_every_regulariser_is_deterministic_and_logs_the_terms():
     init, views, tiny_config = _tiny_problem()
     cfg = replace(
-        tiny_config(30), drop_gamma=0.3, lambda_outside=0.1, lambda_anisotropy=0.01, lambda_opacity=0.01
+        tiny_config(30),
+        drop_gamma=0.3,
+        lambda_outside=0.1,
+        lambda_anisotropy=0.01,
+        lambda_opacity=0.01,
+        lambda_opacity_entropy=0.01,
     )
     a, sa = optimize(init, views, cfg, generator=torch.Generator().manual_seed(5))
     b, sb = optimize(init, views, cfg, generator=torch.Generator().manual_seed(5))
     for name, t in a.tensors().items():
         assert torch.equal(getattr(b, name), t), name
-    assert {"outside_alpha", "anisotropy", "opacity"} <= set(sa.loss_log[-1])
+    assert {"outside_alpha", "anisotropy", "opacity", "opacity_entropy"} <= set(sa.loss_log[-1])
     plain = tiny_config(30)
     c, _ = optimize(init, views, plain, generator=torch.Generator().manual_seed(5))
     assert not torch.equal(c.means, a.means)  # the regularisers change the trajectory

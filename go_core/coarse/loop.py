@@ -38,10 +38,11 @@ import torch
 from go_core.camera import Camera
 from go_core.coarse.color_correction import ViewColorCorrection
 from go_core.coarse.densify import DensifyStrategy, NoDensify, Strategy, screen_size_limit
+from go_core.coarse.depth_normal import camera_normals, depth_normal_loss, valid_pixels
 from go_core.coarse.floaters import FloaterElimination
 from go_core.coarse.losses import depth_loss, photometric_terms
 from go_core.coarse.optim import GaussianOptimizer
-from go_core.coarse.regularizers import drop_compensation, drop_rate, regularization_loss
+from go_core.coarse.regularizers import drop_compensation, drop_rate, eroded_mask, regularization_loss
 from go_core.coarse.settings import CoarseConfig
 from go_core.gaussians import Gaussians
 from go_core.io.checkpoint import Checkpoints, CheckpointSpec, fingerprint_of
@@ -141,6 +142,45 @@ def _render(
         background=background,
         backend=backend,
     )
+
+
+def depth_normal_term(
+    config: CoarseConfig,
+    step: int,
+    gaussians: Gaussians,
+    view: TrainView,
+    out,
+    opacity_scale: torch.Tensor | None,
+    viewmat: torch.Tensor | None,
+) -> torch.Tensor | None:
+    """The depth–normal consistency term (go_core.coarse.depth_normal) for this step's render ``out`` of a
+    masked ``view``: a second render of the same Gaussians (same dropped set, same pose) with their camera-
+    frame normals as colours. None when the term is off, not yet due or the view has no mask."""
+    if config.lambda_depth_normal <= 0 or step < config.depth_normal_from or view.mask is None:
+        return None
+    from go_core.render import render
+
+    g = gaussians
+    vm = view.camera.viewmat_tensor(device=g.means.device)[None] if viewmat is None else viewmat
+    normals = camera_normals(g.quats, g.log_scales, g.means, vm[0].detach())
+    opacities = g.opacities() if opacity_scale is None else g.opacities() * opacity_scale
+    K = view.camera.K_tensor(device=g.means.device)
+    cam = view.camera
+    n_out = render(
+        g.means,
+        g.quats,
+        g.scales(),
+        opacities,
+        normals,
+        vm,
+        K[None],
+        cam.width,
+        cam.height,
+        backend=config.backend,
+    )
+    alpha = out.alpha[0, ..., 0]
+    valid = valid_pixels(alpha, eroded_mask(view.mask, config.inside_erode_px))
+    return depth_normal_loss(n_out.rgb[0], out.depth[0, ..., 0], K, valid)
 
 
 def view_target(view: TrainView, background: torch.Tensor) -> torch.Tensor:
@@ -298,10 +338,14 @@ def optimize(
                 out = dataclasses.replace(out, rgb=rgb[None])
             strategy.pre_backward(step, out)
             loss, parts = view_loss(out, view, bg, config, step)
-            reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask)
+            reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask, extent)
             if reg is not None:
                 loss = loss + reg
                 parts.update(reg_parts)
+            dn = depth_normal_term(config, step, g, view, out, keep_scale, viewmat)
+            if dn is not None:
+                loss = loss + config.lambda_depth_normal * dn
+                parts["depth_normal"] = dn.item()
             if extra_loss is not None:
                 extra = extra_loss(step, g, out, view, index)
                 if extra is not None:

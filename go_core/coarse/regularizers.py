@@ -13,6 +13,8 @@ so each is also an ablation; measured on the dev scenes in docs/coarse.md).
   erosion (``inside_erode_px``) keeps it off the edge band where a binary mask of a real photo is wrong by
   a pixel or two.
 * **Anisotropy**: ``mean_i max(s_max,i / s_min,i − r, 0)`` against needle-like Gaussians (ratio ``r``).
+* **Flattening** and **depth–normal consistency**: go_core.coarse.depth_normal.
+* **Opacity entropy**: ``mean_i H(σ(o_i))`` towards opaque-or-gone Gaussians (a geometry candidate).
 * **Opacity decay**: ``mean_i σ(o_i)``; Gaussians that no training view needs (hidden behind the surface,
   inside the hull's excess) get only this gradient and fade until pruning removes them.
 """
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import torch
 
+from go_core.coarse.depth_normal import flatten_loss
 from go_core.coarse.settings import RegularizerConfig
 from go_core.gaussians import Gaussians
 
@@ -88,11 +91,26 @@ def opacity_decay_loss(opacity_logits: torch.Tensor) -> torch.Tensor:
     return torch.sigmoid(opacity_logits).mean()
 
 
+def opacity_entropy_loss(opacity_logits: torch.Tensor) -> torch.Tensor:
+    """``mean_i H(σ(o_i))``, the binary entropy (nats) of each opacity: pushes opacities towards 0 or 1, so
+    the surface is opaque from every side and what lies behind it fades (SuGaR's entropy term)."""
+    p = torch.sigmoid(opacity_logits)
+    return -(
+        p * torch.nn.functional.logsigmoid(opacity_logits)
+        + (1 - p) * torch.nn.functional.logsigmoid(-opacity_logits)
+    ).mean()
+
+
 def regularization_loss(
-    config: RegularizerConfig, gaussians: Gaussians, alpha: torch.Tensor, mask: torch.Tensor | None
+    config: RegularizerConfig,
+    gaussians: Gaussians,
+    alpha: torch.Tensor,
+    mask: torch.Tensor | None,
+    extent: float = 1.0,
 ) -> tuple[torch.Tensor | None, dict[str, float]]:
     """The enabled loss terms for one training render (``alpha`` the rendered [H,W] opacity, ``mask`` the
-    view's mask or None), weighted and summed; None when none is enabled. Also returns each term's value."""
+    view's mask or None, ``extent`` the scene extent), weighted and summed; None when none is enabled. Also
+    returns each term's value. (The depth–normal term needs a second render: go_core.coarse.loop.)"""
     total: torch.Tensor | None = None
     parts: dict[str, float] = {}
 
@@ -111,6 +129,10 @@ def regularization_loss(
         add("anisotropy", config.lambda_anisotropy, term)
     if config.lambda_opacity > 0:
         add("opacity", config.lambda_opacity, opacity_decay_loss(gaussians.opacity_logits))
+    if config.lambda_opacity_entropy > 0:
+        add("opacity_entropy", config.lambda_opacity_entropy, opacity_entropy_loss(gaussians.opacity_logits))
+    if config.lambda_flatten > 0:
+        add("flatten", config.lambda_flatten, flatten_loss(gaussians.log_scales, extent))
     return total, parts
 
 
@@ -122,6 +144,7 @@ __all__ = [
     "eroded_mask",
     "inside_alpha_loss",
     "opacity_decay_loss",
+    "opacity_entropy_loss",
     "outside_alpha_loss",
     "regularization_loss",
 ]

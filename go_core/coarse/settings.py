@@ -109,6 +109,12 @@ class RegularizerConfig:
     lambda_opacity: float = setting(0.01, ge=0, doc="opacity decay: mean opacity; 0: off")
     lambda_inside: float = setting(0.0, ge=0, doc="(1 - alpha)^2 inside the eroded training masks; 0: off")
     inside_erode_px: int = setting(2, ge=0, doc="lambda_inside: mask erosion (px) kept off the binary edge")
+    lambda_opacity_entropy: float = setting(0.0, ge=0, doc="binary entropy of the opacities (0 or 1); 0: off")
+    lambda_flatten: float = setting(0.0, ge=0, doc="mean smallest Gaussian scale / extent (discs); 0: off")
+    lambda_depth_normal: float = setting(
+        0.0, ge=0, doc="1 - rendered normal . depth normal in the eroded mask (2DGS); 0: off; 1 more render"
+    )
+    depth_normal_from: int = setting(3000, ge=0, doc="lambda_depth_normal: first step (scaled schedule)")
     color_correction: bool = setting(False, doc="learn an affine colour transform per training view")
     color_lr: float = setting(0.001, ge=0, doc="color_correction: Adam lr of the transforms")
 
@@ -139,6 +145,7 @@ SCHEDULE_PARAMS: tuple[str, ...] = (
     "floater_from",
     "floater_until",
     "pose_refine_from",
+    "depth_normal_from",
 )
 
 

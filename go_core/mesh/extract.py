@@ -57,7 +57,12 @@ def render_maps(
 
 def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
     """The settings' pixel rules on a grid of ``voxel``."""
-    return FusionRule(settings.truncation_voxels * voxel, settings.alpha_threshold, settings.carve_alpha)
+    return FusionRule(
+        settings.truncation_voxels * voxel,
+        settings.alpha_threshold,
+        settings.carve_alpha,
+        settings.occluded_weight,
+    )
 
 
 def fuse(gaussians, cameras: list[Camera], grid: VoxelGrid, settings: MeshSettings) -> Tsdf:

@@ -19,6 +19,9 @@ class MeshSettings:
     carve_alpha: float = setting(
         0.05, gt=0, lt=1, doc="a ray is empty space up to where its accumulated opacity reaches this"
     )
+    occluded_weight: float = setting(
+        0.0, ge=0, doc="weight of the -1 vote of a voxel far behind a surface a view saw (0: unobserved)"
+    )
     depth: Literal["median", "expected"] = setting(
         "median", doc="fused depth: where the opacity reaches 1/2, or the alpha-weighted mean"
     )

@@ -8,7 +8,8 @@ Per view and voxel centre x (camera depth z, nearest pixel p), three facts about
 
 The voxel observes s = (d(p) − z) / truncation clamped to ≤ 1 (s = +1 without a surface) when z < f(p)
 (space carving), or when it lies behind a surface within the truncation band (−1 ≤ s ≤ 0); never when s < −1
-(far behind the surface), nor in front of the surface beyond f(p) (a median depth that looked through a
+(far behind the surface: with ``occluded_weight`` w > 0 such a voxel instead observes −1 with weight w, a
+vote that it is inside), nor in front of the surface beyond f(p) (a median depth that looked through a
 translucent front lands on a back surface, whose front side is the object's inside). A see-through model's
 translucent front (opacity below one half, so the median depth lands on the back surface) thus carves
 nothing behind f(p): the object's interior, which a Gaussian shell leaves empty, is not declared free by the
@@ -100,10 +101,13 @@ class FusionRule:
     truncation: float
     alpha_threshold: float  # mesh.alpha_threshold
     carve_alpha: float  # mesh.carve_alpha
+    occluded_weight: float = 0.0  # mesh.occluded_weight: a voxel far behind a seen surface votes −1 this much
 
     def __post_init__(self):
         if self.truncation <= 0:
             raise ValueError(f"the truncation must be positive, got {self.truncation}")
+        if self.occluded_weight < 0:
+            raise ValueError(f"the occluded voxels' weight must be >= 0, got {self.occluded_weight}")
         if not 0.0 <= self.carve_alpha <= self.alpha_threshold:
             raise ValueError(
                 f"need 0 <= carve_alpha <= alpha_threshold, got {self.carve_alpha}, {self.alpha_threshold}"
@@ -151,8 +155,12 @@ def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule
         s = torch.where(surface, (d - z) / rule.truncation, 1.0)
         seen = valid & (s >= -1.0) & ((z < v.free[pix]) | (surface & (s <= 0.0)))
         s = s.clamp_max(1.0)
-        total += s.masked_fill_(~seen, 0.0)
+        total += s.masked_fill(~seen, 0.0)
         count += seen
+        if rule.occluded_weight > 0:  # far behind a surface this view saw: a vote for the inside
+            behind = (valid & surface & (s < -1.0)).float() * rule.occluded_weight
+            total -= behind
+            count += behind
         if v.rgb is not None:
             band = torch.nonzero(seen & surface & (s > -1.0) & (s < 1.0)).squeeze(1)
             rgb_sum.index_add_(0, band, v.rgb[pix[band]])
