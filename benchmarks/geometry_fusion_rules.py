@@ -72,7 +72,7 @@ def variant_mesh(variant: str, scene, m: dict, cameras):
     ]
     box = hull_bounds(train, masks, min_views=len(train))
     grid = VoxelGrid.around(box[0], box[1], 160)
-    rule = FusionRule(3 * grid.voxel, 0.5, 0.05 if free else float(carve))
+    rule = FusionRule(3 * grid.voxel, 0.5, 0.05 if free else float(carve), 0.0)
     field = fuse_narrow_band(grid, views, rule).field
     if clip == "clip":
         field = clip_to_hull(field, grid, train, masks)

@@ -57,7 +57,7 @@ def main() -> None:
             rng = numpy_rng(0, "tsdf_truncation", shape, str(noise))
             views = [View(c, d + noise * grid.voxel * rng.standard_normal(d.shape), a) for c, d, a in exact]
             for trunc in TRUNCATIONS:
-                tsdf = fuse_narrow_band(grid, views, FusionRule(trunc * grid.voxel, 0.5, 0.5))
+                tsdf = fuse_narrow_band(grid, views, FusionRule(trunc * grid.voxel, 0.5, 0.5, 0.0))
                 mesh = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
                 m = geometry_metrics(mesh, truth, count=100_000, seed=0)
                 row = {"shape": shape, "noise_voxels": noise, "truncation_voxels": trunc}

@@ -33,7 +33,7 @@ def _fused(depth_fn, band: bool = True, resolution: int = 64):
     views = [View(c, *depth_fn(c)) for c in cams]
     grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), resolution)
     fuse = fuse_narrow_band if band else fuse_views
-    tsdf = fuse(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.5))  # alpha >= 0.5: surface
+    tsdf = fuse(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.5, 0.0))  # alpha >= 0.5: surface
     return largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel)), grid.voxel
 
 
@@ -66,18 +66,18 @@ def _see_through_sphere_views(rule: FusionRule, resolution: int = 64):
         depth, alpha = sphere_depth(c, RADIUS)
         views.append(View(c, depth, alpha * (0.3 if k % 2 else 1.0)))
     grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), resolution)
-    tsdf = fuse_narrow_band(grid, views, FusionRule(3.0 * grid.voxel, 0.5, rule.carve_alpha))
+    tsdf = fuse_narrow_band(grid, views, FusionRule(3.0 * grid.voxel, 0.5, rule.carve_alpha, 0.0))
     return largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel)), grid.voxel
 
 
 def test_translucent_pixels_carve_nothing():
     """Carving only where alpha ≤ 0.05 recovers the sphere from the 12 opaque views (every vertex within
     a voxel, mean within a quarter); carving wherever alpha < 0.5 (the old rule) erases it."""
-    kept, voxel = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.05))
+    kept, voxel = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.05, 0.0))
     err = np.abs(np.linalg.norm(kept.vertices, axis=1) - RADIUS)
     assert err.max() < voxel and err.mean() < 0.25 * voxel
     try:
-        carved = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.5))[0].volume()
+        carved = _see_through_sphere_views(FusionRule(1.0, 0.5, 0.5, 0.0))[0].volume()
     except ValueError as exc:  # nothing left at all
         assert "no surface" in str(exc)
         carved = 0.0
@@ -90,7 +90,7 @@ def test_a_see_through_shell_keeps_its_interior_with_the_free_depth():
     (every vertex within a voxel, mean within a quarter); deciding by the pixel alone carves the interior
     away."""
     cams, grid = _cameras(), VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 64)
-    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05)
+    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05, 0.0)
     with_free, without = [], []
     for k, c in enumerate(cams):
         front, alpha = sphere_depth(c, RADIUS)
@@ -125,9 +125,9 @@ def test_occluded_votes_keep_a_hole_seen_by_few_views_from_tunnelling_the_solid(
         views.append(View(c, depth, alpha))
     centre = tuple(int(round(-o / grid.voxel)) for o in grid.origin)
     assert np.allclose(grid.origin + grid.voxel * np.array(centre), 0.0, atol=grid.voxel)
-    tunnelled = fuse_views(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.05)).field
+    tunnelled = fuse_views(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.05, 0.0)).field
     assert tunnelled[centre] == 1.0
-    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05, occluded_weight=0.25)
+    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05, 0.25)
     field = fuse_views(grid, views, rule).field
     assert field[centre] < -0.2
     mesh = largest_component(marching_cubes(field, grid.origin, grid.voxel))
@@ -144,7 +144,7 @@ def test_nan_depth_is_no_surface():
         depth, alpha = sphere_depth(c, RADIUS)
         views.append(View(c, np.where(alpha > 0, depth, np.nan), np.where(alpha > 0, 1.0, 0.2)))
     grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 48)
-    field = fuse_views(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.05)).field
+    field = fuse_views(grid, views, FusionRule(3.0 * grid.voxel, 0.5, 0.05, 0.0)).field
     assert np.isfinite(field).all()
     mesh = largest_component(marching_cubes(field, grid.origin, grid.voxel))
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - RADIUS).max() < grid.voxel

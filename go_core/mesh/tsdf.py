@@ -101,7 +101,7 @@ class FusionRule:
     truncation: float
     alpha_threshold: float  # mesh.alpha_threshold
     carve_alpha: float  # mesh.carve_alpha
-    occluded_weight: float = 0.0  # mesh.occluded_weight: a voxel far behind a seen surface votes −1 this much
+    occluded_weight: float  # mesh.occluded_weight: a voxel far behind a seen surface votes −1 this much
 
     def __post_init__(self):
         if self.truncation <= 0:
