@@ -29,22 +29,22 @@ OUT = Path(__file__).resolve().parent / "results" / "photos_sfm_ethiopian_head.j
 
 
 def _auto_masks(files, tmp: Path) -> list[np.ndarray]:
-    """The scene step's auto masks: u2netp on the photos read at ``MASK_SIZE`` (as the scene step makes them,
-    whatever ``scene.photo_size`` is; cached in ``tmp``)."""
+    """The scene step's auto masks (``photo_masks``: u2netp on the photos read at ``MASK_SIZE``, whatever
+    ``scene.photo_size`` is), cached in ``tmp``."""
     import fcntl
 
-    from go_core.photos.folder import read_photo
     from go_core.photos.masks import photo_masker
-    from go_core.photos.scene import MASK_SIZE
+    from go_core.photos.scene import MASK_SIZE, photo_masks
 
-    size = MASK_SIZE
-    cache = tmp / f"auto_masks_{size}.npz"
+    cache = tmp / f"auto_masks_{MASK_SIZE}.npz"
     tmp.mkdir(parents=True, exist_ok=True)
     with open(tmp / "masks.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not cache.is_file():
             masker, _ = photo_masker("auto")
-            ms = [np.asarray(masker(read_photo(f, size)[0]), np.float32) for f in files]
+            ms, source = photo_masks(files, masker)
+            if source != "auto":
+                raise SystemExit(f"{files[0].path.parent}: the photos carry alpha masks, not auto masks")
             np.savez_compressed(cache, masks=np.stack(ms))
         return list(np.load(cache)["masks"])
 

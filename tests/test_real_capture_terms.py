@@ -59,10 +59,10 @@ def test_inside_term_in_the_regulariser_sum_uses_the_eroded_mask():
     mask = torch.zeros(10, 10)
     mask[1:9, 1:9] = 1.0
     cfg = RegularizerConfig(lambda_opacity=0.0, lambda_inside=0.5, inside_erode_px=1)
-    total, parts = regularization_loss(cfg, g, alpha, mask)
+    total, parts = regularization_loss(cfg, g, alpha, mask, 1.0)
     want = 0.5 * inside_alpha_loss(alpha, eroded_mask(mask, 1))
     assert set(parts) == {"inside_alpha"} and float(total) == pytest.approx(float(want), rel=1e-6)
-    assert regularization_loss(cfg, g, alpha, None) == (None, {})  # no mask: no term
+    assert regularization_loss(cfg, g, alpha, None, 1.0) == (None, {})  # no mask: no term
 
 
 # Colour correction ----------------------------------------------------------------------------------------

@@ -106,7 +106,7 @@ def regularization_loss(
     gaussians: Gaussians,
     alpha: torch.Tensor,
     mask: torch.Tensor | None,
-    extent: float = 1.0,
+    extent: float,
 ) -> tuple[torch.Tensor | None, dict[str, float]]:
     """The enabled loss terms for one training render (``alpha`` the rendered [H,W] opacity, ``mask`` the
     view's mask or None, ``extent`` the scene extent), weighted and summed; None when none is enabled. Also

@@ -102,14 +102,25 @@ def _read_all(files: list[PhotoFile], long_side: int, progress: Progress) -> tup
     return images, alphas
 
 
-def _masks(images, alphas, masker, progress: Progress) -> tuple[list[np.ndarray], str]:
+def photo_masks(
+    files: list[PhotoFile],
+    masker: Callable[[np.ndarray], np.ndarray],
+    progress: Progress | None = None,
+    read: tuple[list, list] | None = None,
+) -> tuple[list[np.ndarray], str]:
+    """The masks the scene step makes, at ``MASK_SIZE`` whatever ``photo_size`` is, and where they came
+    from: every photo's own alpha channel when all have one ("alpha"), else ``masker`` on each photo
+    ("auto"). ``read``: the photos' (images, alphas) when already read at ``MASK_SIZE``."""
+    progress = progress or _quiet_progress
+    if read is None:
+        read = tuple(zip(*(read_photo(f, MASK_SIZE) for f in files), strict=True))
+    images, alphas = read
     if all(a is not None for a in alphas):
         return [np.asarray(a, np.float32) for a in alphas], "alpha"
     advance = progress("masks", len(images))
     out = []
     for img in images:
-        m = masker(img)
-        out.append(np.asarray(m, np.float32))
+        out.append(np.asarray(masker(img), np.float32))
         advance(1)
     return out, "auto"
 
@@ -322,11 +333,9 @@ def read_photo_scene(
     progress = progress or _quiet_progress
     files = scan_photo_folder(root, settings.views, Problems(strict=True))
     images, alphas = _read_all(files, settings.photo_size, progress)
-    if settings.photo_size == MASK_SIZE:
-        masks, mask_source = _masks(images, alphas, masker, progress)
-    else:  # read again at MASK_SIZE (the duplicate check above already ran on these files)
-        rgb, alpha = zip(*(read_photo(f, MASK_SIZE) for f in files), strict=True)
-        masks, mask_source = _masks(list(rgb), list(alpha), masker, progress)
+    # at another photo_size the masks read the files again (the duplicate check above already ran on them)
+    same = (images, alphas) if settings.photo_size == MASK_SIZE else None
+    masks, mask_source = photo_masks(files, masker, progress, same)
     groups = camera_groups(files)
     sfm_images = _sfm_images(files, images, settings)
     focal = [f.focal_px(max(img.shape[:2])) for f, img in zip(files, sfm_images, strict=True)]
