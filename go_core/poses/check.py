@@ -197,13 +197,52 @@ def check_poses(
     floor = LEARNED_MIN_THRESHOLD_PX if matcher == "disk" else 0.0
     thr = [max(threshold_px * max(c.width, c.height) / reference_size, floor) for c in cameras]
     coverage, mask_note = _mask_coverages(views, mask_check_max_views)
-    masks_agree = bool(coverage) and min(coverage) >= MIN_COVERAGE
-    pair_err: dict[tuple[int, int], float] = {}
-    consistent: dict[tuple[int, int], np.ndarray] = {}
-    wide_ignored: dict[tuple[int, int], float] = {}
-    disagreeing: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # their matched points
-    refuted: dict[tuple[int, int], PairTurns] = {}
-    blamed_errors: dict[int, list[float]] = {}
+    ev = _judge_pairs(cameras, keypoints, matches, thr, angles, min_matches, wide_baseline_deg)
+    agrees = {p: p in ev.consistent for p in ev.pair_err}
+    _refute_by_silhouettes(views, ev, coverage, agrees, min_consistent_pairs)
+    tracks = build_tracks([len(k) for k in keypoints], ev.consistent)
+    errors = _blame_by_reprojection(cameras, keypoints, tracks, ev)
+    ev.epi_blamed = _blame_inconsistent_pairs(len(views), ev.pair_err, ev.consistent, min_consistent_pairs)
+    results = [
+        _image_result(idx, views, errs, ev, wide_baseline_deg, min_consistent_pairs)
+        for idx, errs in enumerate(errors)
+    ]
+    report = PoseCheckReport(
+        threshold_px,
+        results,
+        len(tracks),
+        len(ev.pair_err) + len(ev.wide_ignored) + len(ev.refuted),
+        [r.name for r in results if r.flagged],
+        [r.name for r in results if not r.flagged and r.status == "unverified"],
+        len(ev.wide_ignored),
+        len(ev.refuted),
+    )
+    if not matches:
+        report.notes.append("no verified feature matches between any two views (no texture, or far apart)")
+    _mask_evidence(views, report, coverage, mask_note)
+    _overrule_self_matches(report, agrees)  # wide pairs: no evidence; refuted pairs still disagree
+    return report
+
+
+@dataclass
+class _Evidence:
+    """What the image pairs say about the given poses, gathered step by step by ``check_poses``."""
+
+    thr: list[float]  # per view: the epipolar / reprojection threshold (px) at its size
+    pair_err: dict[tuple[int, int], float] = field(default_factory=dict)  # median epipolar error per pair
+    consistent: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # agreeing pairs' matches
+    wide_ignored: dict[tuple[int, int], float] = field(default_factory=dict)  # wide pairs: their angle
+    disagreeing: dict[tuple[int, int], tuple] = field(default_factory=dict)  # their matched points
+    refuted: dict[tuple[int, int], PairTurns] = field(default_factory=dict)  # refuted by the silhouettes
+    blamed: list[int] = field(default_factory=list)  # flagged by the leave-one-out reprojection
+    blamed_errors: dict[int, np.ndarray] = field(default_factory=dict)  # their errors when flagged
+    epi_blamed: dict[int, bool] = field(default_factory=dict)  # flagged by disagreeing pairs: ambiguous
+
+
+def _judge_pairs(cameras, keypoints, matches, thr, angles, min_matches: int, wide_deg: float) -> _Evidence:
+    """Each verified pair's median epipolar error under the given poses: consistent (its agreeing matches
+    kept for the tracks), disagreeing, or too wide apart (``wide_deg``) to count as evidence."""
+    ev = _Evidence(thr)
     for (i, j), m in matches.items():
         if len(m) < min_matches:
             continue
@@ -212,111 +251,107 @@ def check_poses(
         err = float(np.median(d))
         limit = max(thr[i], thr[j])
         if err <= limit:
-            pair_err[(i, j)] = err
-            consistent[(i, j)] = m[d <= limit]  # single stray matches of a consistent pair are dropped
-        elif angles[i, j] > wide_baseline_deg:
-            wide_ignored[(i, j)] = float(angles[i, j])
+            ev.pair_err[(i, j)] = err
+            ev.consistent[(i, j)] = m[d <= limit]  # single stray matches of a consistent pair are dropped
+        elif angles[i, j] > wide_deg:
+            ev.wide_ignored[(i, j)] = float(angles[i, j])
         else:
-            pair_err[(i, j)] = err
-            disagreeing[(i, j)] = points
-    # the silhouettes judge the disagreeing pairs that could blame a view (one without enough agreeing
-    # partners: _blame_inconsistent_pairs ignores the others), unless the masks agree and the pairs disagree
-    # set-wide: then every view ends unverified anyway (_overrule_self_matches). Each turn costs seconds.
-    agrees = {p: p in consistent for p in pair_err}
-    support = np.bincount(np.asarray(list(consistent), np.int64).reshape(-1), minlength=len(views))
-    if coverage and not (masks_agree and matches_disagree_set_wide(len(views), agrees)):
-        masks, coverage_floor = [v.mask for v in views], refutation_floor(min(coverage), MIN_COVERAGE)
-        for (i, j), points in disagreeing.items():
-            if min(support[i], support[j]) >= min_consistent_pairs:
-                continue
-            turns = pair_turns(cameras, masks, (i, j), points, max(thr[i], thr[j]), coverage_floor)
-            if turns.refuted(coverage_floor):
-                refuted[(i, j)] = turns
-                del pair_err[(i, j)]
-    tracks = build_tracks([len(k) for k in keypoints], consistent)
-    blamed: list[int] = []
+            ev.pair_err[(i, j)] = err
+            ev.disagreeing[(i, j)] = points
+    return ev
+
+
+def _refute_by_silhouettes(views, ev: _Evidence, coverage, agrees: dict, min_consistent_pairs: int) -> None:
+    """Move the disagreeing pairs whose matches ask for turns the silhouettes refute from ``pair_err`` to
+    ``refuted``. Only pairs that could blame a view are judged (one without enough agreeing partners:
+    ``_blame_inconsistent_pairs`` ignores the others), and none when the masks agree and the pairs disagree
+    set-wide: then every view ends unverified anyway (``_overrule_self_matches``). Each turn costs seconds."""
+    if not coverage:
+        return
+    masks_agree = min(coverage) >= MIN_COVERAGE
+    if masks_agree and matches_disagree_set_wide(len(views), agrees):
+        return
+    support = np.bincount(np.asarray(list(ev.consistent), np.int64).reshape(-1), minlength=len(views))
+    cameras, masks = [v.camera for v in views], [v.mask for v in views]
+    coverage_floor = refutation_floor(min(coverage), MIN_COVERAGE)
+    for (i, j), points in ev.disagreeing.items():
+        if min(support[i], support[j]) >= min_consistent_pairs:
+            continue
+        turns = pair_turns(cameras, masks, (i, j), points, max(ev.thr[i], ev.thr[j]), coverage_floor)
+        if turns.refuted(coverage_floor):
+            ev.refuted[(i, j)] = turns
+            del ev.pair_err[(i, j)]
+
+
+def _blame_by_reprojection(cameras, keypoints, tracks, ev: _Evidence) -> list[np.ndarray]:
+    """Greedily flag the view with the worst median leave-one-out reprojection error above its threshold
+    (``ev.blamed``), removing its observations before the errors are recomputed (a wrong camera raises the
+    errors of the views it shares tracks with). Returns every view's errors after the last flag."""
     while True:
-        kept = [t[~np.isin(t[:, 0], blamed)] for t in tracks]
+        kept = [t[~np.isin(t[:, 0], ev.blamed)] for t in tracks]
         errors = leave_one_out_errors(cameras, keypoints, kept)
         medians = [
-            np.median(e) if len(e) >= 10 and i not in blamed else -np.inf for i, e in enumerate(errors)
+            np.median(e) if len(e) >= 10 and i not in ev.blamed else -np.inf for i, e in enumerate(errors)
         ]
         worst = int(np.argmax(medians))
-        if not medians[worst] > thr[worst]:
-            break
-        blamed.append(worst)
-        blamed_errors[worst] = errors[worst]
+        if not medians[worst] > ev.thr[worst]:
+            return errors
+        ev.blamed.append(worst)
+        ev.blamed_errors[worst] = errors[worst]
 
-    epi_blamed = _blame_inconsistent_pairs(len(views), pair_err, consistent, min_consistent_pairs)
-    results, flagged, unverified = [], [], []
-    for idx, (view, errs) in enumerate(zip(views, errors, strict=True)):
-        mine = {p: e for p, e in pair_err.items() if idx in p}
-        wide = [a for p, a in wide_ignored.items() if idx in p]
-        n_ok = sum(p in consistent for p in mine)
-        e = np.asarray(blamed_errors.get(idx, errs), np.float64)
-        med = float(np.median(e)) if e.size else None
-        res = ImagePoseResult(
-            name=view.name,
-            verified_pairs=len(mine),
-            consistent_pairs=n_ok,
-            best_pair_epipolar_px=min(mine.values()) if mine else None,
-            observations=int(e.size),
-            median_px=med,
-            p90_px=float(np.percentile(e, 90)) if e.size else None,
-            flagged=False,
-        )
-        if idx in epi_blamed:
-            res.flagged, res.status = True, "flagged"
-            partners = [views[j].name for p in mine if p not in consistent for j in p if j != idx]
-            res.reason = (
-                f"agrees with {n_ok} of {len(mine)} matched views (best epipolar error "
-                f"{res.best_pair_epipolar_px:.1f} px > {thr[idx]:.2f} px)"
-            )
-            if epi_blamed[idx]:
-                res.reason += (
-                    f"; its only disagreeing partner {partners[0]} is flagged too: cannot tell which"
-                )
-        elif idx in blamed and med is not None:
-            res.flagged, res.status = True, "flagged"
-            res.reason = f"median reprojection error {med:.2f} px > {thr[idx]:.2f} px"
-        elif not mine and (turns := {p: t for p, t in refuted.items() if idx in p}):
-            res.status = "unverified"
-            partners = ", ".join(views[j].name for p in turns for j in p if j != idx)
-            asked = ", ".join(f"{t.turn_deg[p.index(idx)]:.0f}°" for p, t in turns.items())
-            res.reason = (
-                f"its matches with {partners} disagree with the poses, but turning either view to fit them "
-                f"(this one: {asked}) breaks the silhouettes' agreement: self-matches, no evidence"
-            )
-        elif not mine and wide:
-            res.status = "unverified"
-            res.reason = (
-                f"its only matches are with views {min(wide):.0f}-{max(wide):.0f}° away and disagree: "
-                f"beyond {wide_baseline_deg:g}° such matches are mostly repeated texture: no evidence"
-            )
-        elif not mine:
-            res.status, res.reason = "unverified", "no image pair with enough verified matches"
-        elif n_ok < min_consistent_pairs:
-            res.status, res.reason = "unverified", "its verified pairs are all with flagged views"
-        if res.flagged:
-            flagged.append(view.name)
-        elif res.status == "unverified":
-            unverified.append(view.name)
-        results.append(res)
-    report = PoseCheckReport(
-        threshold_px,
-        results,
-        len(tracks),
-        len(pair_err) + len(wide_ignored) + len(refuted),
-        flagged,
-        unverified,
-        len(wide_ignored),
-        len(refuted),
+
+def _image_result(
+    idx: int, views, errs: np.ndarray, ev: _Evidence, wide_deg: float, min_consistent_pairs: int
+) -> ImagePoseResult:
+    """View ``idx``'s verdict from the evidence: its figures, its status and the reason."""
+    mine = {p: e for p, e in ev.pair_err.items() if idx in p}
+    n_ok = sum(p in ev.consistent for p in mine)
+    e = np.asarray(ev.blamed_errors.get(idx, errs), np.float64)
+    med = float(np.median(e)) if e.size else None
+    res = ImagePoseResult(
+        name=views[idx].name,
+        verified_pairs=len(mine),
+        consistent_pairs=n_ok,
+        best_pair_epipolar_px=min(mine.values()) if mine else None,
+        observations=int(e.size),
+        median_px=med,
+        p90_px=float(np.percentile(e, 90)) if e.size else None,
+        flagged=False,
     )
-    if not matches:
-        report.notes.append("no verified feature matches between any two views (no texture, or far apart)")
-    _mask_evidence(views, report, coverage, mask_note)
-    _overrule_self_matches(report, agrees)  # wide pairs: no evidence; refuted pairs still disagree
-    return report
+    if idx in ev.epi_blamed:
+        res.flagged, res.status = True, "flagged"
+        partners = [views[j].name for p in mine if p not in ev.consistent for j in p if j != idx]
+        res.reason = (
+            f"agrees with {n_ok} of {len(mine)} matched views (best epipolar error "
+            f"{res.best_pair_epipolar_px:.1f} px > {ev.thr[idx]:.2f} px)"
+        )
+        if ev.epi_blamed[idx]:
+            res.reason += f"; its only disagreeing partner {partners[0]} is flagged too: cannot tell which"
+    elif idx in ev.blamed and med is not None:
+        res.flagged, res.status = True, "flagged"
+        res.reason = f"median reprojection error {med:.2f} px > {ev.thr[idx]:.2f} px"
+    elif not mine:
+        res.status, res.reason = "unverified", _unverified_reason(idx, views, ev, wide_deg)
+    elif n_ok < min_consistent_pairs:
+        res.status, res.reason = "unverified", "its verified pairs are all with flagged views"
+    return res
+
+
+def _unverified_reason(idx: int, views, ev: _Evidence, wide_deg: float) -> str:
+    """Why view ``idx``, with no verified pair left, cannot be judged by its features."""
+    if turns := {p: t for p, t in ev.refuted.items() if idx in p}:
+        partners = ", ".join(views[j].name for p in turns for j in p if j != idx)
+        asked = ", ".join(f"{t.turn_deg[p.index(idx)]:.0f}°" for p, t in turns.items())
+        return (
+            f"its matches with {partners} disagree with the poses, but turning either view to fit them "
+            f"(this one: {asked}) breaks the silhouettes' agreement: self-matches, no evidence"
+        )
+    if wide := [a for p, a in ev.wide_ignored.items() if idx in p]:
+        return (
+            f"its only matches are with views {min(wide):.0f}-{max(wide):.0f}° away and disagree: "
+            f"beyond {wide_deg:g}° such matches are mostly repeated texture: no evidence"
+        )
+    return "no image pair with enough verified matches"
 
 
 def matches_disagree_set_wide(

@@ -83,7 +83,7 @@ def _sift_into_database(
     if camera_model:
         reader.camera_model = camera_model
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = num_threads
+    extraction.num_threads = 1  # COLMAP's threaded SIFT extraction varies from run to run
     extraction.use_gpu = False
     extraction.sift.max_num_features = max_features
     extraction.sift.peak_threshold = peak_threshold
