@@ -5,9 +5,11 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               noise_pairs → tune (per-scene tuning) → repair → eval
   pretrained  ablation "pretrained only, no tuning": --set tune.finetune=false
   no_repair   ablation "no repair": --set repair.mode=no_repair (eval scores the coarse model)
-Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, plus the wall and CPU
-seconds of every step from its manifest (the step's original run, also when cached here). Writes a JSON and
-one contact sheet per scene (rows: truth / coarse / repaired, for ``--sheet-views`` test views).
+Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
+(``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
+34 item 4), plus the wall and CPU seconds of every step from its manifest (the step's original run, also
+when cached here). Writes a JSON and one contact sheet per scene (rows: truth / coarse / repaired, for
+``--sheet-views`` test views).
 
     nice -n 10 python benchmarks/repair_dev.py --scenes milk basket --workroot /tmp/repair_dev \
         --out benchmarks/results/repair_dev.json --sheets docs/img
@@ -134,6 +136,7 @@ def main() -> None:
                 "repair_model": metrics.get("repair_model", ""),
                 "run_wall_s": round(time.perf_counter() - t0, 1),
                 "eval_dir": str(summary.step("eval").artifact_dir),
+                "error_split": (metrics.get("error_split") or {}).get("regions"),
             }
             if variant == "full":
                 for step in STEPS:

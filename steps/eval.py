@@ -11,6 +11,8 @@ Outputs: ``metrics.json`` (per view + mean), ``test_grid.png`` (rows: GT, render
 a ground-truth mesh and the mesh step ran, ``metrics.json`` has ``geometry`` (go_core.metrics.geometry:
 Chamfer-L1, F@1%/2%, normal consistency, test-view silhouette IoU of the final mesh and of the visual
 hull's mesh, the baseline) and ``geometry.png`` shows the ground truth, the final mesh and the hull mesh.
+With a ground-truth mesh, ``error_split`` says where the test error is: outside the true silhouette, or on
+surface that the training views see or do not see (go_core.metrics.error_split).
 """
 
 from __future__ import annotations
@@ -185,6 +187,34 @@ def geometry(inputs: dict[str, Path], scene, cf: bool, params: EvalParams, ctx) 
     return {"status": art.STATUS_OK, **res}
 
 
+def error_split(inputs: dict[str, Path], scene, renders: list, gts: list, cf: bool) -> dict:
+    """The ``error_split`` entry of metrics.json (go_core.metrics.error_split): the test views' squared
+    error split between pixels outside the true silhouette and on surface that a training view sees or
+    that none sees, from the scene's ground-truth mesh; or a reason why there is none."""
+    from go_core.mesh.files import read_mesh_npz
+    from go_core.metrics.error_split import SUPERSAMPLE, SeenSurface, split_errors, summarise
+
+    if not art.GT_MESH.path(inputs["scene"]).is_file():
+        return {"status": art.STATUS_SKIPPED, "reason": f"the scene has no ground-truth {art.GT_MESH.file}"}
+    if cf:
+        return {"status": art.STATUS_SKIPPED, "reason": "the model lives in its fitted cameras' frame (CF)"}
+    if any(v.mask is None for v in scene.test):
+        return {"status": art.STATUS_SKIPPED, "reason": "a test view has no mask (the true silhouette)"}
+    surface = SeenSurface(read_mesh_npz(art.GT_MESH.path(inputs["scene"])), scene.train_cameras)
+    per_view = [
+        split_errors(pred, gt, surface.regions(cam, view.mask))
+        for view, cam, pred, gt in zip(scene.test, scene.test_cameras, renders, gts, strict=True)
+    ]
+    return {
+        "status": art.STATUS_OK,
+        "regions": summarise(per_view),
+        "definition": "outside: true alpha <= 0.5; seen / unseen: inside, at a ground-truth surface point "
+        f"that a training view sees (its face map at {SUPERSAMPLE}x resolution has a face whose plane "
+        f"passes within {surface.tolerance:.4g} of the point) or that none sees",
+        "per_view": [{"name": v.name, **split} for v, split in zip(scene.test, per_view, strict=True)],
+    }
+
+
 def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
     from PIL import Image
 
@@ -238,6 +268,7 @@ def run(ctx, inputs: dict[str, Path], params: EvalParams) -> None:
         "views": per_view,
         "mean": mean,
         "geometry": geometry(inputs, scene, bool(poses.get("cf")), params, ctx),
+        "error_split": error_split(inputs, scene, renders, gts, bool(poses.get("cf"))),
     }
     art.write_json(ctx.out_dir, art.METRICS, result)
     grid = grid_image(

@@ -85,9 +85,23 @@ def test_mesh_step_and_eval_geometry(tmp_path):
     ctx = Ctx(tmp_path, "eval")
     eval_params = {"lpips_nets": [], "geometry_samples": 100_000}
     eval_step.run(ctx, inputs, step_params(eval_step.__name__, eval_params))
-    geo = json.loads(art.METRICS.path(ctx.out_dir).read_text())["geometry"]
+    metrics = json.loads(art.METRICS.path(ctx.out_dir).read_text())
+    geo = metrics["geometry"]
     assert geo["status"] == "ok" and geo["protocol"]["samples_per_surface"] == 100_000
     final, hull = geo["final"], geo["hull"]
     assert final["chamfer_l1"] < 0.5 * hull["chamfer_l1"] and final["fscore_2pct"] > hull["fscore_2pct"]
     assert final["silhouette_iou"] > 0.95 and len(final["silhouette_iou_per_view"]) == 2
     assert art.GEOMETRY_PICTURE.path(ctx.out_dir).is_file()
+    # where the error is: the regions' squared errors add up to each view's PSNR, the inside pixels are
+    # the true masks', and the 2 test views see surface that the 4 training views saw, and some they did not
+    split = metrics["error_split"]
+    assert split["status"] == "ok"
+    scene = art.read_scene(inputs["scene"])
+    for view, row, test in zip(metrics["views"], split["per_view"], scene.test, strict=True):
+        sse = sum(row[r]["sse"] for r in ("outside", "seen", "unseen"))
+        assert -10 * np.log10(sse / test.mask.size) == pytest.approx(view["psnr"], abs=1e-3)
+        inside = row["seen"]["pixels"] + row["unseen"]["pixels"]
+        assert inside == int((test.mask > 0.5).sum())
+    regions = split["regions"]
+    assert sum(regions[r]["error_share"] for r in regions) == pytest.approx(1.0)
+    assert 0.5 < regions["seen"]["pixel_share"] / (1 - regions["outside"]["pixel_share"]) < 1.0
