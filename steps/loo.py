@@ -64,68 +64,16 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
     pending = [k for k, d in enumerate(run_dirs) if not run_is_done(d)]
     ctx.log.info("leave-one-out: %d runs (%d to do), %d worker(s)", len(views), len(pending), workers)
     progress = ctx.progress(len(views), "leave-one-out runs", completed=len(views) - len(pending))
+    job = {"views": trained, "init": init, "settings": settings, "seed": ctx.seed, "extent": extent}
     if workers > 1 and len(pending) > 1:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        jobs = [
-            {
-                "index": k,
-                "views": trained,
-                "shown": views[k],
-                "init": init,
-                "settings": settings,
-                "seed": ctx.seed,
-                "run_dir": str(run_dirs[k]),
-                "extent": extent,
-                "threads": threads,
-            }
-            for k in pending
-        ]
-        with ProcessPoolExecutor(
-            max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn")
-        ) as ex:
-            for fut in as_completed([ex.submit(run_job, j) for j in jobs]):
-                fut.result()
-                progress.advance()
+        _run_in_processes(pending, views, run_dirs, job, min(workers, len(pending)), threads, progress)
     else:
-        total = settings.phase1_iterations + settings.phase2_iterations
-        for k in pending:
-            inner: dict = {}
-
-            def tick(step: int, info: dict, k: int = k, inner: dict = inner) -> None:
-                if "bar" not in inner:  # created at the first step run: a resumed run starts where it was
-                    what = f"run {k + 1}/{len(views)} (without {views[k].camera.name})"
-                    inner["bar"] = ctx.progress(total, what, completed=step - 1)
-                inner["bar"].advance(1, loss=info["loss"], gaussians=info["n"])
-
-            run_one(
-                k, trained, init, settings, ctx.seed, run_dirs[k], extent, on_progress=tick, shown=views[k]
-            )
-            if "bar" in inner:
-                inner["bar"].close()
-            progress.advance()
+        _run_here(ctx, pending, views, run_dirs, job, progress)
     progress.close()
 
     runs = [load_run(d) for d in run_dirs]
     stats = difference_stats([(r.before, r.after) for r in runs])
-    arrays: dict[str, np.ndarray] = {}
-    pairs = []
-    for r in runs:
-        arrays[f"clean_{r.index}"], arrays[f"mask_{r.index}"] = load_clean_and_mask(run_dirs[r.index])
-        for j, (step, img) in enumerate(zip(r.render_steps, r.renders, strict=True)):
-            key = f"degraded_{r.index}_{j}"
-            arrays[key] = img
-            pairs.append(
-                {
-                    "view": r.index,
-                    "name": r.name,
-                    "phase2_step": step,
-                    "degraded": key,
-                    "clean": f"clean_{r.index}",
-                    "mask": f"mask_{r.index}",
-                }
-            )
+    arrays, pairs = _pairs(runs, run_dirs)
     write_npz_deterministic(art.LOO_PAIRS.path(ctx.out_dir), arrays)
     summary = {
         "status": "ok",
@@ -151,3 +99,70 @@ def run(ctx, inputs: dict[str, Path], params: LooParams) -> None:
         gaussians_compared=stats.count,
         position_std=[round(s, 6) for s in stats.std["means"]],
     )
+
+
+def _run_in_processes(pending, views, run_dirs, job: dict, workers: int, threads: int, progress) -> None:
+    """The pending leave-one-out runs in ``workers`` spawned processes of ``threads`` threads each."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    jobs = [
+        {**job, "index": k, "shown": views[k], "run_dir": str(run_dirs[k]), "threads": threads}
+        for k in pending
+    ]
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+        for fut in as_completed([ex.submit(run_job, j) for j in jobs]):
+            fut.result()
+            progress.advance()
+
+
+def _run_here(ctx, pending, views, run_dirs, job: dict, progress) -> None:
+    """The pending leave-one-out runs one after the other in this process, each with its own bar."""
+    settings = job["settings"]
+    total = settings.phase1_iterations + settings.phase2_iterations
+    for k in pending:
+        inner: dict = {}
+
+        def tick(step: int, info: dict, k: int = k, inner: dict = inner) -> None:
+            if "bar" not in inner:  # created at the first step run: a resumed run starts where it was
+                what = f"run {k + 1}/{len(views)} (without {views[k].camera.name})"
+                inner["bar"] = ctx.progress(total, what, completed=step - 1)
+            inner["bar"].advance(1, loss=info["loss"], gaussians=info["n"])
+
+        run_one(
+            k,
+            job["views"],
+            job["init"],
+            settings,
+            job["seed"],
+            run_dirs[k],
+            job["extent"],
+            on_progress=tick,
+            shown=views[k],
+        )
+        if "bar" in inner:
+            inner["bar"].close()
+        progress.advance()
+
+
+def _pairs(runs, run_dirs) -> tuple[dict[str, np.ndarray], list[dict]]:
+    """The arrays of loo_pairs.npz (each run's clean photo, mask and degraded renders) and the pairs'
+    records naming them."""
+    arrays: dict[str, np.ndarray] = {}
+    pairs = []
+    for r in runs:
+        arrays[f"clean_{r.index}"], arrays[f"mask_{r.index}"] = load_clean_and_mask(run_dirs[r.index])
+        for j, (step, img) in enumerate(zip(r.render_steps, r.renders, strict=True)):
+            key = f"degraded_{r.index}_{j}"
+            arrays[key] = img
+            pairs.append(
+                {
+                    "view": r.index,
+                    "name": r.name,
+                    "phase2_step": step,
+                    "degraded": key,
+                    "clean": f"clean_{r.index}",
+                    "mask": f"mask_{r.index}",
+                }
+            )
+    return arrays, pairs
