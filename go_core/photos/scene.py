@@ -376,26 +376,7 @@ def read_photo_scene(
         "exif_focal": sum(f is not None for f in focal),
         "rotated_by_exif": [f.name for f in files if f.orientation != 1],
         "masks": mask_source,
-        "sfm": {
-            "matcher": settings.sfm.matcher,
-            "features": "inside the masks" if out.masked else "whole images",
-            "registered": len(out.cameras),
-            "not_registered": out.missing,
-            "mean_reprojection_px": round(out.mean_reprojection_px, 4),
-            "reprojection_px": {k: round(v, 4) for k, v in out.reprojection_px.items()},
-            "observations": out.observations,
-            "points": out.num_points,
-            "pairs": out.num_pairs,
-            "verified_pairs": out.num_verified_pairs,
-            "attempts": attempts,
-            "checks_passed": [
-                "registered fraction",
-                "rotation spread",
-                "reprojection error",
-                "points per photo",
-                "training masks agree with poses",
-            ],
-        },
+        "sfm": _sfm_record(out, attempts, settings),
         "views": {
             "train": [names[i] for i in train_idx],
             "why": choice.to_dict(),
@@ -403,6 +384,30 @@ def read_photo_scene(
         },
     }
     return scene, record
+
+
+def _sfm_record(out: SfmOutcome, attempts: list, settings: PhotoSettings) -> dict:
+    """The scene record's ``sfm`` entry: how the photos were posed, and the checks they passed."""
+    return {
+        "matcher": settings.sfm.matcher,
+        "features": "inside the masks" if out.masked else "whole images",
+        "registered": len(out.cameras),
+        "not_registered": out.missing,
+        "mean_reprojection_px": round(out.mean_reprojection_px, 4),
+        "reprojection_px": {k: round(v, 4) for k, v in out.reprojection_px.items()},
+        "observations": out.observations,
+        "points": out.num_points,
+        "pairs": out.num_pairs,
+        "verified_pairs": out.num_verified_pairs,
+        "attempts": attempts,
+        "checks_passed": [
+            "registered fraction",
+            "rotation spread",
+            "reprojection error",
+            "points per photo",
+            "training masks agree with poses",
+        ],
+    }
 
 
 def photo_folder_facts(root: str | Path, views: int, problems: Problems) -> dict:
