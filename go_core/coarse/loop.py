@@ -283,36 +283,15 @@ def optimize(
         limit = screen_size_limit(config, [v.mask for v in views])
         strategy = DensifyStrategy(config, extent, len(opt), limit)
     floaters = FloaterElimination(config)
-    stats = TrainStats(initial_count=len(g0), max_count=len(g0))
-    stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
-    poses = None
-    if config.refine_poses:
-        from go_core.poses.refine import JointPoses
-
-        cams, lrs = [v.camera for v in views], (config.pose_lr_rotation, config.pose_lr_translation)
-        poses = JointPoses(cams, *lrs, config.pose_refine_from, config.iterations)
-    colors = ViewColorCorrection(len(views), config.color_lr) if config.color_correction else None
-    order: list[int] = []
-    start = 0
+    extras = _RunExtras.make(config, views)
     fingerprint = fingerprint_of(
         [config.fingerprint(), len(views), len(g0), start_sh_degree, f"{extent:.12g}"]
     )
     ckpts = None if checkpoint is None else Checkpoints(checkpoint, *CHECKPOINT)
-    if ckpts is not None:
-        payload = ckpts.newest(fingerprint)
-        if payload is not None:
-            opt.load_state_dict(payload["optimizer"])
-            strategy.load_state_dict(payload["strategy"])
-            generator.set_state(payload["rng"])
-            order = list(payload["order"])
-            start = int(payload["step"])
-            saved = payload["stats"]
-            stats = TrainStats(**saved)
-            stats.resumed_from = start
-            if poses is not None:
-                poses.load_state_dict(payload["poses"])
-            if colors is not None:
-                colors.load_state_dict(payload["colors"])
+    start, order, stats = _resume(ckpts, fingerprint, opt, strategy, generator, extras)
+    if stats is None:
+        stats = TrainStats(initial_count=len(g0), max_count=len(g0))
+        stats.depth_loss_used = config.lambda_depth > 0 and any(v.depth is not None for v in views)
 
     fixed_bg = torch.tensor(config.background, dtype=torch.float32)
     with _cyclic_gc_paused() as gc_tick:
@@ -320,32 +299,19 @@ def optimize(
             gc_tick(step)
             opt.set_means_lr(step)
             active_sh = min(config.sh_degree, start_sh_degree + (step // max(config.sh_increase_every, 1)))
-            if sample_view is not None:
-                index = int(sample_view(step, generator))
-            else:
-                if not order:
-                    order = torch.randperm(len(views), generator=generator).tolist()
-                index = order.pop()
+            index = _next_view(step, sample_view, order, len(views), generator)
             view = views[index]
             bg = torch.rand(3, generator=generator) if config.random_background else fixed_bg
             g = opt.gaussians()
             rate = drop_rate(step, config.iterations, config.drop_gamma)
             keep_scale = drop_compensation(len(g), rate, generator)
-            viewmat = poses.viewmat(index, step) if poses is not None else None
+            viewmat = extras.poses.viewmat(index, step) if extras.poses is not None else None
             out = _render(g, view.camera, active_sh, bg, config.backend, keep_scale, viewmat)
-            if colors is not None:
-                rgb = colors.apply(index, out.rgb[0], out.alpha[0, ..., 0], bg)
+            if extras.colors is not None:
+                rgb = extras.colors.apply(index, out.rgb[0], out.alpha[0, ..., 0], bg)
                 out = dataclasses.replace(out, rgb=rgb[None])
             strategy.pre_backward(step, out)
-            loss, parts = view_loss(out, view, bg, config, step)
-            reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask, extent)
-            if reg is not None:
-                loss = loss + reg
-                parts.update(reg_parts)
-            dn = depth_normal_term(config, step, g, view, out, keep_scale, viewmat)
-            if dn is not None:
-                loss = loss + config.lambda_depth_normal * dn
-                parts["depth_normal"] = dn.item()
+            loss, parts = _training_loss(config, step, g, out, view, bg, extent, keep_scale, viewmat)
             if extra_loss is not None:
                 extra = extra_loss(step, g, out, view, index)
                 if extra is not None:
@@ -354,10 +320,7 @@ def optimize(
             loss.backward()
             strategy.post_backward(step, out, view.camera.width, view.camera.height, opt)
             opt.step()
-            if poses is not None:
-                poses.step(step)
-            if colors is not None:
-                colors.step()
+            extras.step(step)
             changed = strategy.after_step(step, opt, generator)
             floater_pass = floaters.after_step(step, opt, strategy)
             if floater_pass is not None:
@@ -367,44 +330,125 @@ def optimize(
             stats.max_count = max(stats.max_count, len(opt))
             stats.iterations = step
             if step % max(config.log_every, 1) == 0 or step == config.iterations:
-                stats.loss_log.append(
-                    {
-                        "step": step,
-                        "loss": round(loss.item(), 6),
-                        "n": len(opt),
-                        "psnr": round(train_psnr(out, view, bg), 4),
-                        **{k: round(v, 6) for k, v in parts.items()},
-                    }
-                )
+                stats.loss_log.append(_log_entry(step, loss, len(opt), out, view, bg, parts))
             if on_progress is not None:
                 on_progress(step, {"loss": loss.item(), "n": len(opt), "view": index, **parts, **changed})
             if ckpts is not None and ckpts.due(step, config.iterations):
-                stats.densify = dict(strategy.counts)
-                stats.final_count = len(opt)
-                if poses is not None:
-                    stats.pose_corrections = poses.corrections()
-                ckpts.save(
-                    step,
-                    fingerprint,
-                    {
-                        "optimizer": opt.state_dict(),
-                        "strategy": strategy.state_dict(),
-                        "rng": _rng_state(generator),
-                        "order": list(order),
-                        "stats": stats.to_dict(),
-                        **({"poses": poses.state_dict()} if poses is not None else {}),
-                        **({"colors": colors.state_dict()} if colors is not None else {}),
-                    },
-                )
-    stats.final_count = len(opt)
-    stats.densify = dict(strategy.counts)
-    if poses is not None:
-        stats.pose_corrections = poses.corrections()
-    if colors is not None:
-        stats.color_transforms = colors.summary()
+                _record_counts(stats, opt, strategy, extras)
+                ckpts.save(step, fingerprint, _checkpoint(opt, strategy, generator, order, stats, extras))
+    _record_counts(stats, opt, strategy, extras)
+    if extras.colors is not None:
+        stats.color_transforms = extras.colors.summary()
     if not math.isfinite(float(opt.params["means"].detach().sum())):
         raise FloatingPointError("coarse optimisation diverged (non-finite Gaussian positions)")
     return opt.snapshot(), stats
+
+
+@dataclass
+class _RunExtras:
+    """What a run learns beside the Gaussians: the joint training poses (``refine_poses``) and the
+    per-view colour corrections (``color_correction``); None when off."""
+
+    poses: object | None
+    colors: ViewColorCorrection | None
+
+    @staticmethod
+    def make(config: CoarseConfig, views: list[TrainView]) -> _RunExtras:
+        poses = None
+        if config.refine_poses:
+            from go_core.poses.refine import JointPoses
+
+            cams, lrs = [v.camera for v in views], (config.pose_lr_rotation, config.pose_lr_translation)
+            poses = JointPoses(cams, *lrs, config.pose_refine_from, config.iterations)
+        colors = ViewColorCorrection(len(views), config.color_lr) if config.color_correction else None
+        return _RunExtras(poses, colors)
+
+    def step(self, step: int) -> None:
+        if self.poses is not None:
+            self.poses.step(step)
+        if self.colors is not None:
+            self.colors.step()
+
+    def state_dict(self) -> dict:
+        return {
+            **({"poses": self.poses.state_dict()} if self.poses is not None else {}),
+            **({"colors": self.colors.state_dict()} if self.colors is not None else {}),
+        }
+
+    def load_state_dict(self, payload: dict) -> None:
+        if self.poses is not None:
+            self.poses.load_state_dict(payload["poses"])
+        if self.colors is not None:
+            self.colors.load_state_dict(payload["colors"])
+
+
+def _resume(ckpts, fingerprint: str, opt, strategy, generator, extras: _RunExtras):
+    """(step, view order, stats) of the newest checkpoint of this run, its state loaded into the optimiser,
+    the strategy, the generator and the extras; (0, [], None) when there is none."""
+    payload = None if ckpts is None else ckpts.newest(fingerprint)
+    if payload is None:
+        return 0, [], None
+    opt.load_state_dict(payload["optimizer"])
+    strategy.load_state_dict(payload["strategy"])
+    generator.set_state(payload["rng"])
+    extras.load_state_dict(payload)
+    stats = TrainStats(**payload["stats"])
+    stats.resumed_from = int(payload["step"])
+    return int(payload["step"]), list(payload["order"]), stats
+
+
+def _next_view(step: int, sample_view, order: list[int], count: int, generator: torch.Generator) -> int:
+    """The training view of ``step``: ``sample_view``'s choice, else the next of a random permutation
+    (``order`` is consumed in place and drawn again when empty)."""
+    if sample_view is not None:
+        return int(sample_view(step, generator))
+    if not order:
+        order.extend(torch.randperm(count, generator=generator).tolist())
+    return order.pop()
+
+
+def _training_loss(config: CoarseConfig, step: int, g, out, view: TrainView, bg, extent, keep_scale, viewmat):
+    """The step's loss and its parts: the photometric (and depth) loss of ``view``, the enabled
+    regularisers and the depth-normal term."""
+    loss, parts = view_loss(out, view, bg, config, step)
+    reg, reg_parts = regularization_loss(config, g, out.alpha[0, ..., 0], view.mask, extent)
+    if reg is not None:
+        loss = loss + reg
+        parts.update(reg_parts)
+    dn = depth_normal_term(config, step, g, view, out, keep_scale, viewmat)
+    if dn is not None:
+        loss = loss + config.lambda_depth_normal * dn
+        parts["depth_normal"] = dn.item()
+    return loss, parts
+
+
+def _log_entry(step: int, loss, count: int, out, view: TrainView, bg, parts: dict) -> dict:
+    return {
+        "step": step,
+        "loss": round(loss.item(), 6),
+        "n": count,
+        "psnr": round(train_psnr(out, view, bg), 4),
+        **{k: round(v, 6) for k, v in parts.items()},
+    }
+
+
+def _record_counts(stats: TrainStats, opt, strategy, extras: _RunExtras) -> None:
+    """The run's counts so far into ``stats`` (for a checkpoint, and at the end)."""
+    stats.densify = dict(strategy.counts)
+    stats.final_count = len(opt)
+    if extras.poses is not None:
+        stats.pose_corrections = extras.poses.corrections()
+
+
+def _checkpoint(opt, strategy, generator, order: list[int], stats: TrainStats, extras: _RunExtras) -> dict:
+    return {
+        "optimizer": opt.state_dict(),
+        "strategy": strategy.state_dict(),
+        "rng": _rng_state(generator),
+        "order": list(order),
+        "stats": stats.to_dict(),
+        **extras.state_dict(),
+    }
 
 
 __all__ = [
