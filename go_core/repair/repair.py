@@ -166,6 +166,40 @@ class RepairCache:
         return out
 
 
+def _summary(settings: RepairSettings, arcs: RepairArcs, cache: RepairCache, stats) -> dict:
+    """The repair's record that depends only on its inputs (identical after a resume): settings, arcs,
+    the last refreshed views and the training counts."""
+    return {
+        "settings": asdict(settings),
+        "arcs": [
+            {
+                "start_deg": round(float(np.degrees(arcs.arc_bounds(i)[0])), 3),
+                "length_deg": round(float(np.degrees(arcs.arc_bounds(i)[1])), 3),
+            }
+            for i in range(len(arcs))
+        ],
+        "d_max": cache.d_max,
+        "refreshes": -(
+            -min(settings.repair_iterations, settings.iterations) // max(settings.refresh_every, 1)
+        ),
+        "last_views": [
+            {
+                "name": v.camera.name,
+                "arc": v.arc,
+                "t": v.timestep,
+                "w": round(v.w, 6),
+                "lambda": round(v.lam, 6),
+            }
+            for v in cache.views
+        ],
+        "train": {
+            "final_count": stats.final_count,
+            "densify": stats.densify,
+            "loss_log": stats.loss_log[-5:],
+        },
+    }
+
+
 def repair_gaussians(
     coarse: Gaussians,
     views: list,
@@ -256,35 +290,7 @@ def repair_gaussians(
         checkpoint=ckpt,
         start_sh_degree=sh,
     )
-    summary = {
-        "settings": asdict(settings),
-        "arcs": [
-            {
-                "start_deg": round(float(np.degrees(arcs.arc_bounds(i)[0])), 3),
-                "length_deg": round(float(np.degrees(arcs.arc_bounds(i)[1])), 3),
-            }
-            for i in range(len(arcs))
-        ],
-        "d_max": cache.d_max,
-        "refreshes": -(
-            -min(settings.repair_iterations, settings.iterations) // max(settings.refresh_every, 1)
-        ),
-        "last_views": [
-            {
-                "name": v.camera.name,
-                "arc": v.arc,
-                "t": v.timestep,
-                "w": round(v.w, 6),
-                "lambda": round(v.lam, 6),
-            }
-            for v in cache.views
-        ],
-        "train": {
-            "final_count": stats.final_count,
-            "densify": stats.densify,
-            "loss_log": stats.loss_log[-5:],
-        },
-    }
+    summary = _summary(settings, arcs, cache, stats)
     facts = {
         "resumed_from": stats.resumed_from,
         "refreshes_made": cache.made,
