@@ -178,23 +178,42 @@ def read_colmap_specs(
     root: Path, views: int, problems: Problems
 ) -> tuple[list[ViewSpec], list[ViewSpec], str]:
     """(train specs, test specs, split source) of a COLMAP scene folder."""
+    loaded = _read_model(root, problems)
+    if loaded is None:
+        return [], [], ""
+    model, recon = loaded
+    specs = _view_specs(root, model, recon, problems)
+    train_idx, test_idx, source = _split(root, model, specs, views, problems)
+    if train_idx is None:
+        return [], [], source
+    train = [specs[i] for i in train_idx if specs[i] is not None]
+    test = [specs[i] for i in (test_idx or []) if specs[i] is not None]
+    return train, test, source
+
+
+def _read_model(root: Path, problems: Problems):
+    """(model folder, pycolmap.Reconstruction) of the scene, or None with the problem recorded."""
     import pycolmap
 
     model = find_model_dir(root)
     if model is None:
         where = root / "sparse" / "0"
         problems.add("missing COLMAP model: expected sparse/0/cameras.bin or cameras.txt", where)
-        return [], [], ""
+        return None
     if (model / "cameras.txt").is_file() and not (model / "cameras.bin").is_file():
         if not _prescan_text(model, problems):
-            return [], [], ""
+            return None
     try:
-        recon = pycolmap.Reconstruction(str(model))
+        return model, pycolmap.Reconstruction(str(model))
     except Exception as exc:  # pycolmap raises ValueError/IndexError/RuntimeError with C++ check text
         msg = " ".join(str(exc).split())
         problems.add(f"cannot read the COLMAP model ({msg})", model)
-        return [], [], ""
+        return None
 
+
+def _view_specs(root: Path, model: Path, recon, problems: Problems) -> list[ViewSpec | None]:
+    """One spec per registered image in name order (None where its camera, pose or file is bad, with the
+    problem recorded); duplicate names are problems too."""
     cameras = {}
     for cam_id, cam in sorted(recon.cameras.items()):
         parts = _camera_parts(cam, problems, model)
@@ -232,8 +251,14 @@ def read_colmap_specs(
         mask = find_mask_file([root / "masks" / im.name, root / "masks" / stem])
         camera = Camera(view_name(path, root / "images"), int(cam.width), int(cam.height), K, w2c)
         specs.append(ViewSpec(camera, path, mask, dist, where=model))
+    return specs
 
-    count = len(registered)
+
+def _split(root: Path, model: Path, specs: list, views: int, problems: Problems):
+    """(train indices or None, test indices or None, source) of the registered images: a split file for
+    ``views``, a farthest-point choice of ``views``, the one split file, or all images; sparse_test.txt
+    names the test images, else the images not trained on are."""
+    count = len(specs)
     files = split_files(root)
     test_file = root / "sparse_test.txt"
     test_idx = _read_split_file(test_file, count, problems) if test_file.is_file() else None
@@ -273,8 +298,4 @@ def read_colmap_specs(
     elif train_idx is not None and len(train_idx) < count:
         test_idx = [i for i in range(count) if i not in train_idx]
         source += " (test: the other images)"
-    if train_idx is None:
-        return [], [], source
-    train = [specs[i] for i in train_idx if specs[i] is not None]
-    test = [specs[i] for i in (test_idx or []) if specs[i] is not None]
-    return train, test, source
+    return train_idx, test_idx, source
