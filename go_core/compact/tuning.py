@@ -63,6 +63,52 @@ def _checkpoints(directory: Path | None, every: int) -> Checkpoints | None:
     return None if directory is None else Checkpoints(CheckpointSpec(Path(directory), every, keep=2), *CKPT)
 
 
+def _restore(ckpts, fp: str, model, opt, names: list[str], gen, rng, schedule):
+    """Load the newest checkpoint of this tuning into the model, the optimiser, the generators and the
+    schedule; its (pair counts, step, loss entries, running loss), or None when there is none."""
+    found = None if ckpts is None else ckpts.newest_tensors(fp)
+    if found is None:
+        return None
+    tensors, meta = found
+    model.load_state_dict({k[len("model.") :]: v for k, v in tensors.items() if k.startswith("model.")})
+    if meta["adam_step"] > 0:
+        state = opt.state_dict()
+        state["state"] = {
+            i: {
+                "step": torch.tensor(float(meta["adam_step"])),
+                "exp_avg": tensors[f"adam.{n}.exp_avg"],
+                "exp_avg_sq": tensors[f"adam.{n}.exp_avg_sq"],
+            }
+            for i, n in enumerate(names)
+        }
+        opt.load_state_dict(state)
+    gen.set_state(tensors["torch_rng"])
+    rng.bit_generator.state = meta["np_rng"]
+    schedule.load_state(meta["schedule"])
+    return meta["counts"], int(meta["step"]), meta["losses"], meta["running"]
+
+
+def _checkpoint(step: int, model, opt, names: list[str], params: list, state: tuple) -> tuple[dict, dict]:
+    """(tensors, meta) of a checkpoint at ``step``: the model, Adam's moments, the generators, the
+    schedule, the loss log and the pair counts (``state`` = generator, rng, schedule, log, counts)."""
+    gen, rng, schedule, log, counts = state
+    tensors = {f"model.{k}": v for k, v in model.state_dict().items()}
+    for i, n in enumerate(names):
+        st = opt.state[params[i]]
+        tensors[f"adam.{n}.exp_avg"] = st["exp_avg"]
+        tensors[f"adam.{n}.exp_avg_sq"] = st["exp_avg_sq"]
+    tensors["torch_rng"] = gen.get_state()
+    meta = {
+        "adam_step": step,
+        "np_rng": rng.bit_generator.state,
+        "schedule": schedule.state(),
+        "losses": log.entries,
+        "counts": counts,
+        "running": log.running,
+    }
+    return tensors, meta
+
+
 def tune_compact(
     model: CompactRestorer,
     draw: Callable[[np.random.Generator, torch.Generator], Pair],
@@ -95,29 +141,10 @@ def tune_compact(
     start = 0
     fp = settings.fingerprint(fingerprint_extra)
     ckpts = _checkpoints(checkpoint_dir, settings.checkpoint_every)
-    if ckpts is not None:
-        found = ckpts.newest_tensors(fp)
-        if found is not None:
-            tensors, meta = found
-            model.load_state_dict(
-                {k[len("model.") :]: v for k, v in tensors.items() if k.startswith("model.")}
-            )
-            if meta["adam_step"] > 0:
-                state = opt.state_dict()
-                state["state"] = {
-                    i: {
-                        "step": torch.tensor(float(meta["adam_step"])),
-                        "exp_avg": tensors[f"adam.{n}.exp_avg"],
-                        "exp_avg_sq": tensors[f"adam.{n}.exp_avg_sq"],
-                    }
-                    for i, n in enumerate(names)
-                }
-                opt.load_state_dict(state)
-            gen.set_state(tensors["torch_rng"])
-            rng.bit_generator.state = meta["np_rng"]
-            schedule.load_state(meta["schedule"])
-            counts, start = meta["counts"], int(meta["step"])
-            log = LossLog(settings.log_every, settings.steps, meta["losses"], meta["running"])
+    resumed = _restore(ckpts, fp, model, opt, names, gen, rng, schedule)
+    if resumed is not None:
+        counts, start, losses, running = resumed
+        log = LossLog(settings.log_every, settings.steps, losses, running)
     model.train()
     for step in range(start + 1, settings.steps + 1):
         pair = draw(rng, gen)
@@ -132,21 +159,8 @@ def tune_compact(
         if on_step is not None:
             on_step(step, value)
         if ckpts is not None and ckpts.due(step, settings.steps):
-            tensors = {f"model.{k}": v for k, v in model.state_dict().items()}
-            for i, n in enumerate(names):
-                st = opt.state[params[i]]
-                tensors[f"adam.{n}.exp_avg"] = st["exp_avg"]
-                tensors[f"adam.{n}.exp_avg_sq"] = st["exp_avg_sq"]
-            tensors["torch_rng"] = gen.get_state()
-            meta = {
-                "adam_step": step,
-                "np_rng": rng.bit_generator.state,
-                "schedule": schedule.state(),
-                "losses": log.entries,
-                "counts": counts,
-                "running": log.running,
-            }
-            ckpts.save_tensors(step, fp, tensors, meta)
+            state = (gen, rng, schedule, log, counts)
+            ckpts.save_tensors(step, fp, *_checkpoint(step, model, opt, names, params, state))
     if settings.method == "lora":
         from go_core.compact.lora import merge_conv_lora
 
