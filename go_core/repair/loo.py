@@ -50,6 +50,36 @@ def _save_npy(path: Path, a: np.ndarray) -> None:
     atomic_write(path, lambda tmp: np.save(open(tmp, "wb"), a))
 
 
+def _phase1(
+    init: Gaussians, others: list, settings: LooSettings, gen, run_dir: Path, extent: float, on_progress
+):
+    """Phase 1 of a leave-one-out run (the coarse model fitted without the left-out view), or its saved
+    result and the generator's state after it when it already ran."""
+    from go_core.coarse.loop import optimize
+    from go_core.io.atomic import atomic_torch_save
+    from go_core.io.checkpoint import CheckpointSpec, load_checkpoint
+
+    before_path = run_dir / "before.npz"
+    if before_path.is_file():
+        gen.set_state(load_checkpoint(run_dir / "rng_after_phase1.pt"))  # a tensor: never code
+        return Gaussians.load(before_path)
+    before, stats1 = optimize(
+        init,
+        others,
+        settings.phase1_config(),
+        generator=gen,
+        extent=extent,
+        checkpoint=CheckpointSpec(run_dir / "phase1", every=settings.checkpoint_every),
+        on_progress=on_progress,
+    )
+    atomic_torch_save(run_dir / "rng_after_phase1.pt", gen.get_state())
+    before.save(before_path)
+    atomic_write_json(
+        run_dir / "phase1.json", {"final_count": stats1.final_count, "loss_log": stats1.loss_log[-3:]}
+    )
+    return before
+
+
 def run_one(
     index: int,
     views: list,
@@ -75,31 +105,8 @@ def run_one(
     left = views[index] if shown is None else shown
     others = [v for i, v in enumerate(views) if i != index]
     gen = torch_generator(int(seed), "loo", index)
-    cfg1 = settings.phase1_config()
-    before_path = run_dir / "before.npz"
     info: dict = {"index": index, "name": left.camera.name}
-    if before_path.is_file():
-        before = Gaussians.load(before_path)
-        from go_core.io.checkpoint import load_checkpoint
-
-        gen.set_state(load_checkpoint(run_dir / "rng_after_phase1.pt"))  # a tensor: never code
-    else:
-        before, stats1 = optimize(
-            init,
-            others,
-            cfg1,
-            generator=gen,
-            extent=extent,
-            checkpoint=CheckpointSpec(run_dir / "phase1", every=settings.checkpoint_every),
-            on_progress=on_progress,
-        )
-        from go_core.io.atomic import atomic_torch_save
-
-        atomic_torch_save(run_dir / "rng_after_phase1.pt", gen.get_state())
-        before.save(before_path)
-        atomic_write_json(
-            run_dir / "phase1.json", {"final_count": stats1.final_count, "loss_log": stats1.loss_log[-3:]}
-        )
+    before = _phase1(init, others, settings, gen, run_dir, extent, on_progress)
 
     steps = set(render_steps(settings))
     rdir = run_dir / "renders"
