@@ -106,29 +106,10 @@ def build_report(
     manifests = store.current_manifests(wd)
     last = _last_run(wd)
     last_status = {s["name"]: s for s in last.get("steps", [])}
-    steps = []
-    for name in _step_order(wd, manifests, pipeline_path):
-        m = manifests[name]
-        rec = m.get("record", {})
-        run_info = last_status.get(name, {})
-        steps.append(
-            {
-                "name": name,
-                "version": m.get("version"),
-                "code": code_digest(m.get("code")),
-                "key": m.get("key"),
-                "status": rec.get("status", "ok"),
-                "reason": rec.get("reason"),
-                "cached_in_last_run": run_info.get("cached") if run_info else None,
-                "wall_s": float(m.get("wall_s", 0.0)),
-                "cpu_s": float(m.get("cpu_s", 0.0)),
-                "peak_mem_mb": float(m.get("peak_mem_mb", 0.0)),
-                "device": m.get("device"),
-                "params": m.get("params", {}),
-                "finished": m.get("finished"),
-                "record": rec,
-            }
-        )
+    steps = [
+        _step_entry(name, manifests[name], last_status.get(name, {}))
+        for name in _step_order(wd, manifests, pipeline_path)
+    ]
     metrics = None
     metrics_dir = store.artifact_dir(wd, "eval") if "eval" in manifests else None
     if metrics_dir is not None and art.METRICS.path(metrics_dir).is_file():
@@ -137,28 +118,7 @@ def build_report(
     libraries: dict[str, str] = {}
     for name in (s["name"] for s in steps):
         libraries.update(manifests[name].get("libraries", {}))
-    images = {}
-    for label, artifact in (("test_grid", art.TEST_GRID), ("geometry", art.GEOMETRY_PICTURE)):
-        if metrics_dir is not None and artifact.path(metrics_dir).is_file():
-            images[label] = str(artifact.path(metrics_dir))
-    files = {}
-    for label, step, name in (
-        ("turntable", "turntable", art.TURNTABLE.file),
-        ("contact_sheet", "turntable", art.CONTACT_SHEET.file),
-        ("camera_path", "turntable", art.CAMERA_PATH_VIDEO.file),
-        ("curves_coarse", "coarse", art.CURVES.file),
-        ("curves_repair", "repair", art.CURVES.file),
-        ("model_ply", "export", art.POINT_CLOUD.file),
-        ("model_spz", "export", FILE_NAMES["spz"]),
-        ("scene_cameras", "scene", art.SCENE_INFO.file),
-        ("model_glb", "mesh", art.MESH_GLB.file),
-        ("model_mesh", "mesh", art.MESH_PLY.file),
-    ):
-        found = store.artifact_dir(wd, step) if step in manifests else None
-        if found is not None and (found / name).is_file():
-            (images if label in ("turntable", "contact_sheet", "camera_path") else files)[label] = str(
-                found / name
-            )
+    images, files = _images_and_files(wd, manifests, metrics_dir)
     return {
         "schema": REPORT_SCHEMA_ID,
         "version": REPORT_VERSION,
@@ -184,6 +144,55 @@ def build_report(
         "warnings": mixed_run_problems(manifests),
         "settings": _settings(wd),
     }
+
+
+def _step_entry(name: str, m: dict, run_info: dict) -> dict[str, Any]:
+    """One step's row of the report from its manifest and its entry in the last run (``run_info``)."""
+    rec = m.get("record", {})
+    return {
+        "name": name,
+        "version": m.get("version"),
+        "code": code_digest(m.get("code")),
+        "key": m.get("key"),
+        "status": rec.get("status", "ok"),
+        "reason": rec.get("reason"),
+        "cached_in_last_run": run_info.get("cached") if run_info else None,
+        "wall_s": float(m.get("wall_s", 0.0)),
+        "cpu_s": float(m.get("cpu_s", 0.0)),
+        "peak_mem_mb": float(m.get("peak_mem_mb", 0.0)),
+        "device": m.get("device"),
+        "params": m.get("params", {}),
+        "finished": m.get("finished"),
+        "record": rec,
+    }
+
+
+def _images_and_files(wd: Path, manifests: dict, metrics_dir: Path | None) -> tuple[dict, dict]:
+    """The report's images (test grid, geometry, turntable, ...) and result files (model, mesh, curves,
+    ...), by label, where the steps wrote them."""
+    images = {}
+    for label, artifact in (("test_grid", art.TEST_GRID), ("geometry", art.GEOMETRY_PICTURE)):
+        if metrics_dir is not None and artifact.path(metrics_dir).is_file():
+            images[label] = str(artifact.path(metrics_dir))
+    files = {}
+    for label, step, name in (
+        ("turntable", "turntable", art.TURNTABLE.file),
+        ("contact_sheet", "turntable", art.CONTACT_SHEET.file),
+        ("camera_path", "turntable", art.CAMERA_PATH_VIDEO.file),
+        ("curves_coarse", "coarse", art.CURVES.file),
+        ("curves_repair", "repair", art.CURVES.file),
+        ("model_ply", "export", art.POINT_CLOUD.file),
+        ("model_spz", "export", FILE_NAMES["spz"]),
+        ("scene_cameras", "scene", art.SCENE_INFO.file),
+        ("model_glb", "mesh", art.MESH_GLB.file),
+        ("model_mesh", "mesh", art.MESH_PLY.file),
+    ):
+        found = store.artifact_dir(wd, step) if step in manifests else None
+        if found is not None and (found / name).is_file():
+            (images if label in ("turntable", "contact_sheet", "camera_path") else files)[label] = str(
+                found / name
+            )
+    return images, files
 
 
 def _settings(workdir: Path) -> dict[str, Any] | None:
