@@ -7,9 +7,9 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
   no_repair   ablation "no repair": --set repair.mode=no_repair (eval scores the coarse model)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
-34 item 4), plus the wall and CPU seconds of every step from its manifest (the step's original run, also
-when cached here). Writes a JSON and one contact sheet per scene (rows: truth / coarse / repaired, for
-``--sheet-views`` test views).
+34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
+and CPU seconds of every step from its manifest (the step's original run, also when cached here). Writes a
+JSON and one contact sheet per scene (rows: truth / coarse / repaired, for ``--sheet-views`` test views).
 
     nice -n 10 python benchmarks/repair_dev.py --scenes milk basket --workroot /tmp/repair_dev \
         --out benchmarks/results/repair_dev.json --sheets docs/img
@@ -48,6 +48,14 @@ def loo_pair_psnr(loo_dir: Path) -> float:
     pairs = json.loads((Path(loo_dir) / "loo.json").read_text())["pairs"]
     mse = [np.mean((arrays[p["degraded"]] - arrays[p["clean"]]) ** 2) for p in pairs]
     return float(np.mean([-10.0 * np.log10(max(m, 1e-12)) for m in mse]))
+
+
+def _geometry(geometry: dict | None) -> dict | None:
+    """The final mesh's and the visual hull's scores from eval's ``geometry`` (None without a mesh)."""
+    if not geometry or geometry.get("status") != "ok":
+        return None
+    keys = ("chamfer_l1", "fscore_1pct", "fscore_2pct", "normal_consistency", "silhouette_iou")
+    return {mesh: {k: geometry[mesh][k] for k in keys} for mesh in ("final", "hull")}
 
 
 def _sheet(scene_dir: Path, coarse_eval: Path, full_eval: Path, out: Path, views: int, workdir: Path) -> None:
@@ -137,6 +145,7 @@ def main() -> None:
                 "run_wall_s": round(time.perf_counter() - t0, 1),
                 "eval_dir": str(summary.step("eval").artifact_dir),
                 "error_split": (metrics.get("error_split") or {}).get("regions"),
+                "geometry": _geometry(metrics.get("geometry")),
             }
             if variant == "full":
                 for step in STEPS:
