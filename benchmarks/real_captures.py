@@ -110,7 +110,13 @@ def step_times(summary) -> dict:
 
 
 def run_stage(
-    scene_dir: Path, workdir: Path, overrides: dict, stage: str, suite, profile: str | None = None
+    scene_dir: Path,
+    workdir: Path,
+    overrides: dict,
+    stage: str,
+    suite,
+    profile: str | None = None,
+    seed: int = 0,
 ) -> tuple[dict, list]:
     """One stage of one variant: its metrics, step times and renders (or the error that stopped it)."""
     from go_core import artifacts as art
@@ -120,7 +126,13 @@ def run_stage(
     until = "coarse" if stage == "coarse" else "eval"
     try:
         summary = run_pipeline(
-            scene_dir, workdir=workdir, profile=profile, overrides=overrides, until=until, quiet=True
+            scene_dir,
+            workdir=workdir,
+            profile=profile,
+            overrides=overrides,
+            until=until,
+            quiet=True,
+            seed=seed,
         )
     except Exception as exc:  # a failed step (e.g. CollapsedModelError) is a result here, not a crash
         return {"failed": True, "error": f"{type(exc).__name__}: {exc}"[:2000]}, []
@@ -203,6 +215,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--sheets", type=Path, default=None, help="folder for real_<capture>_<variant>.jpg")
     ap.add_argument("--sheet-views", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=0, help="the run's seed; not 0: entries named NAME@seedN")
     ap.add_argument("--force", action="store_true", help="rerun entries already in --out")
     ap.add_argument("--table", action="store_true", help="print --out as a markdown table and exit")
     args = ap.parse_args(argv)
@@ -228,13 +241,16 @@ def main(argv=None) -> int:
         scene_dir = scene_folder(capture, args.data, args.workroot, args.photo_size)
         entry = result["captures"].setdefault(capture, {})
         for name, overrides in variants:
-            slot = entry.setdefault(name, {"overrides": overrides})
+            name = name if args.seed == 0 else f"{name}@seed{args.seed}"
+            slot = entry.setdefault(name, {"overrides": overrides, "seed": args.seed})
             sheet_rows = {}
             workdir = args.workroot / capture.replace("/", "_") / name
             for stage in args.stages:
                 if stage in slot and not args.force:
                     continue
-                res, rendered = run_stage(scene_dir, workdir, overrides, stage, suite, args.profile)
+                res, rendered = run_stage(
+                    scene_dir, workdir, overrides, stage, suite, args.profile, args.seed
+                )
                 slot[stage] = res
                 shown = {k: res.get(k) for k in ("psnr", "ssim", "lpips_star", "see_through_pct", "error")}
                 print(capture, name, stage, shown, flush=True)

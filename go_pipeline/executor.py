@@ -102,25 +102,25 @@ def _set_apart_build(
     return max(wall - build_s, 0.0)
 
 
-def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, ...]) -> Execution:
-    records: dict[str, Any] = {}
-    outcome: dict[str, Any] = {}
-    read_fd, write_fd = os.pipe()
+def _child_env() -> dict[str, str]:
+    """The step worker's environment: this process's, with the worker's fixed settings."""
     env = dict(os.environ)
     set_default_wait(env)  # libgomp reads it when torch loads it: in the child's environment
     env.setdefault("PYTHONUNBUFFERED", "1")
     env["PYTHONSAFEPATH"] = "1"  # processes the step starts (multiprocessing) never import from their cwd
-    oom_before = _oom_kills()
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(
-        worker_command(write_fd),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        pass_fds=(write_fd, *keep_fds),
-        env=env,
-    )
-    os.close(write_fd)
+    return env
+
+
+def _start_readers(
+    proc: subprocess.Popen,
+    read_fd: int,
+    spec: dict[str, Any],
+    display: Display,
+    records: dict[str, Any],
+    outcome: dict[str, Any],
+) -> list[threading.Thread]:
+    """Threads that pass the worker's events to ``display`` (its final event into ``outcome``) and its
+    output to the debug log."""
 
     def read_events() -> None:
         with os.fdopen(read_fd, encoding="utf-8") as f:
@@ -149,6 +149,25 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
     ]
     for t in threads:
         t.start()
+    return threads
+
+
+def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, ...]) -> Execution:
+    records: dict[str, Any] = {}
+    outcome: dict[str, Any] = {}
+    read_fd, write_fd = os.pipe()
+    oom_before = _oom_kills()
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        worker_command(write_fd),
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        pass_fds=(write_fd, *keep_fds),
+        env=_child_env(),
+    )
+    os.close(write_fd)
+    threads = _start_readers(proc, read_fd, spec, display, records, outcome)
     try:
         assert proc.stdin is not None
         proc.stdin.write(json.dumps(spec).encode("utf-8"))
@@ -174,29 +193,10 @@ def _execute_child(spec: dict[str, Any], display: Display, keep_fds: tuple[int, 
     if proc.returncode == 0 and outcome.get("type") == "done":
         return Execution(True, wall, cpu, peak, outcome.get("device", "cpu"), records)
     if outcome.get("type") == "error":
-        return Execution(
-            False,
-            wall,
-            cpu,
-            peak,
-            "cpu",
-            records,
-            outcome["kind"],
-            outcome["exc_type"],
-            outcome["message"],
-            outcome.get("traceback", ""),
-        )
-    return Execution(
-        False,
-        wall,
-        cpu,
-        peak,
-        "cpu",
-        records,
-        "killed",
-        "ProcessDied",
-        death_message(proc.returncode, _oom_kills() > oom_before),
-    )
+        failure = (outcome["kind"], outcome["exc_type"], outcome["message"], outcome.get("traceback", ""))
+    else:
+        failure = ("killed", "ProcessDied", death_message(proc.returncode, _oom_kills() > oom_before))
+    return Execution(False, wall, cpu, peak, "cpu", records, *failure)
 
 
 def worker_command(event_fd: int) -> list[str]:

@@ -8,7 +8,9 @@ view has a mask, else onnx when ``onnx_model`` is set, else u2netp when it is in
 grabcut (with a warning that says how to fetch u2netp). ``object_box`` (``x0,y0,x1,y1@PHOTO``, any photo
 of the scene) tells u2netp where the object is (go_core.scene.object_hint). With ``auto_vote`` and at
 least 8 posed views, u2netp masks every view and keeps what ``auto_vote`` of the views agree on in 3D
-(docs/photo_masks.md). The method used per view is recorded (``ctx.record(method=..., views=[...])``).
+(docs/photo_masks.md). ``binary_edges: smooth`` replaces a provided mask that holds only 0 and 1 by each
+outline pixel's estimated coverage (go_core.scene.mask_edges; ``edges: smoothed`` in its view's record).
+The method used per view is recorded (``ctx.record(method=..., views=[...])``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import TYPE_CHECKING
 from go_core import artifacts as art
 from go_core.errors import PipelineError, SceneError
 from go_core.scene.auto_mask import VOTE_MIN_VIEWS
+from go_core.scene.mask_edges import is_binary, smooth_binary_edges
 from go_core.scene.masking import OnnxSegmenter, grabcut_mask, mask_stats, validate_mask
 
 if TYPE_CHECKING:
@@ -104,15 +107,20 @@ def run(ctx, inputs: dict[str, Path], params: MaskParams) -> None:
     bar = ctx.progress(len(views), "masks")
     for i, v in enumerate(views):
         label = str(v.source or v.name)
+        edges = None
         if masker is None:
             m = v.mask
             validate_mask(m, v.image.shape[:2], label)
+            if params.binary_edges == "smooth" and is_binary(m):
+                m, edges = smooth_binary_edges(m), "smoothed"
         else:
             m = masker(i, v)
         if float((m > 0.5).mean()) == 0.0:
             raise SceneError(f"the {method} mask is empty: no object found", path=label)
         masks.append(m)
-        info.append({"view": v.name, "method": method, **mask_stats(m)})
+        info.append(
+            {"view": v.name, "method": method, **mask_stats(m), **({"edges": edges} if edges else {})}
+        )
         bar.advance()
     bar.close()
     art.write_masks(ctx.out_dir, masks)

@@ -100,6 +100,11 @@ class MaskParams:
     )
     grabcut_iterations: int = setting(5, ge=1)
     grabcut_border: float = setting(0.03, ge=0, lt=0.5, doc="image border fraction seeded as background")
+    binary_edges: Literal["smooth", "keep"] = setting(
+        "keep",
+        doc="provided masks with only 0 and 1: smooth = each outline pixel's estimated coverage "
+        "(go_core.scene.mask_edges) | keep",
+    )
 
 
 @dataclass

@@ -9,8 +9,10 @@ import logging
 import numpy as np
 import pytest
 
+from go_core import artifacts as art
 from go_core.errors import MissingWeightsError, SceneError
 from go_core.scene.artifact import save_scene_artifact
+from go_core.scene.mask_edges import is_binary, smooth_binary_edges
 from go_core.scene.salient_weights import u2netp_path
 from go_core.scene.types import Scene, View
 from go_pipeline.pipeline import step_params
@@ -113,3 +115,41 @@ def test_with_enough_posed_views_the_masks_are_voted_through_the_poses(tmp_path)
     assert info["vote_views"] == 10
     assert (voted & truth[1]).sum() / (voted | truth[1]).sum() > 0.85
     assert voted[slab & ~truth[1]].mean() < 0.1
+
+
+def _provided_scene(tmp_path, soft_first: bool):
+    """Four views with provided binary disc masks; the first soft when ``soft_first``."""
+    cams = ring_cameras(4, W, H, f=60.0)
+    yy, xx = np.mgrid[:H, :W]
+    disc = (((yy - 40.3) ** 2 + (xx - 70.6) ** 2) < 23.7**2).astype(np.float32)
+    masks = [disc.copy() for _ in cams]
+    if soft_first:
+        masks[0] = disc * 0.9
+    pairs = enumerate(zip(cams, masks, strict=True))
+    views = [View(c, _photo(i), m, source=f"images/{c.name}.png") for i, (c, m) in pairs]
+    out = tmp_path / "scene"
+    save_scene_artifact(Scene(tmp_path / "raw", "nerf", views, []), out)
+    stored = [v.mask for v in art.read_scene(out).train]  # as the scene artifact holds them
+    assert not is_binary(stored[0]) and all(is_binary(m) for m in stored[1:])
+    return {"scene": out}, stored
+
+
+@pytest.mark.parametrize("edges", ["smooth", "keep"])
+def test_provided_binary_masks_get_their_edges_smoothed_or_kept(tmp_path, edges):
+    from go_pipeline.steps import mask
+
+    inputs, given = _provided_scene(tmp_path, soft_first=True)
+    ctx = FakeCtx(tmp_path, "mask")
+    mask.run(ctx, inputs, step_params(mask.__name__, {"method": "provided", "binary_edges": edges}))
+    info = json.loads((ctx.out_dir / "mask.json").read_text())
+    saved = np.load(ctx.out_dir / "masks.npz")
+    made = [saved[k] for k in sorted(saved.files)]
+    np.testing.assert_array_equal(made[0], given[0])  # a soft mask is never changed
+    assert "edges" not in info["views"][0]
+    for m, g, view in zip(made[1:], given[1:], info["views"][1:], strict=True):
+        if edges == "smooth":
+            np.testing.assert_array_equal(m, smooth_binary_edges(g))
+            assert view["edges"] == "smoothed" and 0 < np.count_nonzero((m > 0) & (m < 1))
+        else:
+            np.testing.assert_array_equal(m, g)
+            assert "edges" not in view

@@ -106,20 +106,7 @@ def project_gaussians(
     u = fx * x_safe * rz + cx
     v = fy * y_safe * rz + cy
 
-    # Jacobian of the perspective projection, evaluated with x/z, y/z clamped to 1.3x the field of view
-    # (as 3DGS/gsplat) so Gaussians far outside the image do not get absurd screen-space shapes.
-    tan_fovx = 0.5 * width / fx
-    tan_fovy = 0.5 * height / fy
-    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
-    lim_x_neg = cx / fx + 0.3 * tan_fovx
-    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
-    lim_y_neg = cy / fy + 0.3 * tan_fovy
-    tx = z_safe * torch.minimum(lim_x_pos, torch.maximum(-lim_x_neg, x_safe * rz))
-    ty = z_safe * torch.minimum(lim_y_pos, torch.maximum(-lim_y_neg, y_safe * rz))
-    zero = torch.zeros_like(z_safe)
-    J = torch.stack([fx * rz, zero, -fx * tx * rz * rz, zero, fy * rz, -fy * ty * rz * rz], dim=-1).reshape(
-        C, -1, 2, 3
-    )
+    J = _perspective_jacobian(x_safe, y_safe, z_safe, rz, Ks, width, height)
 
     # T = J W R S  (2x3); Σ2d = T Tᵀ + eps2d I
     M = quat_to_rotmat(quats) * scales[:, None, :]  # [N,3,3] = R S
@@ -128,19 +115,7 @@ def project_gaussians(
     finite_T = (T.abs() <= MAX_AXIS_PX).all(-1).all(-1)  # also False for NaN
     valid = in_depth & finite_T
     T = torch.where(valid[..., None, None], T, torch.zeros_like(T))
-    t0, t1 = T[..., 0, :], T[..., 1, :]
-    a_raw = (t0 * t0).sum(-1)
-    b = (t0 * t1).sum(-1)
-    c_raw = (t1 * t1).sum(-1)
-    # Cauchy-Binet: det(T Tᵀ) = Σ of squared 2x2 minors of T
-    m01 = t0[..., 0] * t1[..., 1] - t0[..., 1] * t1[..., 0]
-    m02 = t0[..., 0] * t1[..., 2] - t0[..., 2] * t1[..., 0]
-    m12 = t0[..., 1] * t1[..., 2] - t0[..., 2] * t1[..., 1]
-    det_raw = m01 * m01 + m02 * m02 + m12 * m12
-    a = a_raw + eps2d
-    c = c_raw + eps2d
-    det = det_raw + eps2d * (a_raw + c_raw) + eps2d * eps2d  # = a c - b², ≥ eps2d²
-    conics = torch.stack([c / det, -b / det, a / det], dim=-1)
+    conics, a, c, b, det, det_raw = _conics(T, eps2d)
 
     # 3-sigma radius from the largest eigenvalue, computed without cancellation.
     mid = 0.5 * (a + c)
@@ -163,11 +138,63 @@ def project_gaussians(
         ratio = torch.clamp_min(det_raw / det, 1e-12)  # ∈ (0, 1]
         opac = opac * torch.sqrt(ratio)
 
+    rgb = _view_colors(colors, sh_degree, means, R, t)
+    return Projected(means2d, conics, rgb, opac, z_safe, radii)
+
+
+def _perspective_jacobian(
+    x_safe: torch.Tensor,
+    y_safe: torch.Tensor,
+    z_safe: torch.Tensor,
+    rz: torch.Tensor,
+    Ks: torch.Tensor,
+    width: int,
+    height: int,
+) -> torch.Tensor:
+    """[C,N,2,3] Jacobian of the perspective projection at camera-space points."""
+    C = Ks.shape[0]
+    fx, fy = Ks[:, 0, 0, None], Ks[:, 1, 1, None]  # [C,1]
+    cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
+    # Jacobian of the perspective projection, evaluated with x/z, y/z clamped to 1.3x the field of view
+    # (as 3DGS/gsplat) so Gaussians far outside the image do not get absurd screen-space shapes.
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
+    lim_x_neg = cx / fx + 0.3 * tan_fovx
+    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
+    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    tx = z_safe * torch.minimum(lim_x_pos, torch.maximum(-lim_x_neg, x_safe * rz))
+    ty = z_safe * torch.minimum(lim_y_pos, torch.maximum(-lim_y_neg, y_safe * rz))
+    zero = torch.zeros_like(z_safe)
+    return torch.stack(
+        [fx * rz, zero, -fx * tx * rz * rz, zero, fy * rz, -fy * ty * rz * rz], dim=-1
+    ).reshape(C, -1, 2, 3)
+
+
+def _conics(T: torch.Tensor, eps2d: float) -> tuple[torch.Tensor, ...]:
+    """(conics [C,N,3], a, c, b, det, det_raw) of Σ2d = T Tᵀ + eps2d I, with det = a c − b² ≥ eps2d²."""
+    t0, t1 = T[..., 0, :], T[..., 1, :]
+    a_raw = (t0 * t0).sum(-1)
+    b = (t0 * t1).sum(-1)
+    c_raw = (t1 * t1).sum(-1)
+    # Cauchy-Binet: det(T Tᵀ) = Σ of squared 2x2 minors of T
+    m01 = t0[..., 0] * t1[..., 1] - t0[..., 1] * t1[..., 0]
+    m02 = t0[..., 0] * t1[..., 2] - t0[..., 2] * t1[..., 0]
+    m12 = t0[..., 1] * t1[..., 2] - t0[..., 2] * t1[..., 1]
+    det_raw = m01 * m01 + m02 * m02 + m12 * m12
+    a = a_raw + eps2d
+    c = c_raw + eps2d
+    det = det_raw + eps2d * (a_raw + c_raw) + eps2d * eps2d  # = a c - b², ≥ eps2d²
+    conics = torch.stack([c / det, -b / det, a / det], dim=-1)
+    return conics, a, c, b, det, det_raw
+
+
+def _view_colors(
+    colors: torch.Tensor, sh_degree: int | None, means: torch.Tensor, R: torch.Tensor, t: torch.Tensor
+) -> torch.Tensor:
+    """[C,N,3] colours: SH evaluated towards each camera centre, or the given colours."""
     if sh_degree is not None:
         campos = -torch.einsum("cji,cj->ci", R, t)  # camera centres -Rᵀt [C,3]
         dirs = means[None, :, :] - campos[:, None, :]
-        rgb = torch.clamp_min(eval_sh(sh_degree, colors[None], dirs) + 0.5, 0.0)
-    else:
-        rgb = colors[None].expand(C, -1, -1)
-
-    return Projected(means2d, conics, rgb, opac, z_safe, radii)
+        return torch.clamp_min(eval_sh(sh_degree, colors[None], dirs) + 0.5, 0.0)
+    return colors[None].expand(R.shape[0], -1, -1)

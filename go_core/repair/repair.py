@@ -200,6 +200,67 @@ def _summary(settings: RepairSettings, arcs: RepairArcs, cache: RepairCache, sta
     }
 
 
+@dataclass
+class _RepairLoss:
+    """The repair step's ``extra_loss``: L_rep on one cached repaired view (or SDS on one novel view) per
+    iteration during the first ``repair_iterations``, with λ(π) and the linear decay; keeps the L_rep log."""
+
+    arcs: RepairArcs
+    cache: RepairCache
+    diffusion: RepairDiffusion
+    settings: RepairSettings
+    seed: int
+    sh: int
+    lpips: LpipsFn | None
+    log: list[dict]
+
+    def __call__(self, step: int, g: Gaussians, out, view, index: int) -> torch.Tensor | None:
+        s = self.settings
+        if step > s.repair_iterations:
+            return None
+        if s.loss == "sds":
+            return self.sds(step, g)
+        self.cache.ensure((step - 1) // max(s.refresh_every, 1), g.detach())
+        pick = numpy_rng(self.seed, "repair_pick", step).integers(len(self.cache.views))
+        cv = self.cache.views[int(pick)]
+        rgb, _ = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
+        img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, s.lpips)
+        loss = self.decay(step) * cv.w * cv.lam * img
+        if step % 100 == 0:
+            self.log.append(
+                {
+                    "step": step,
+                    "l_rep": round(float(loss.detach()), 6),
+                    "w": round(cv.w, 4),
+                    "lambda": round(cv.lam, 4),
+                    "t": cv.timestep,
+                }
+            )
+        return loss
+
+    def decay(self, step: int) -> float:
+        s = self.settings
+        return lrep_decay(step - 1, s.repair_iterations, s.lrep_start, s.lrep_end)
+
+    def sds(self, step: int, g: Gaussians) -> torch.Tensor:
+        """Score distillation on one novel view of the repair paths (same λ(π) and decay as L_rep)."""
+        s = self.settings
+        rng = numpy_rng(int(self.seed), "sds", step)
+        gen = torch_generator(int(self.seed), "sds", step)
+        views = self.arcs.sample(rng, 1, name_prefix=f"sds_{step}")
+        rv = views[int(rng.integers(len(views)))]
+        rgb, alpha = render_differentiable(g, rv.camera, 1.0, s.backend, self.sh)
+        frame = Frame.choose(rv.camera.height, rv.camera.width, alpha.detach())
+        square = frame.to_square(hwc_to_bchw(rgb), s.resolution).to(self.diffusion.device)
+        loss_sds, t = self.diffusion.sds_loss(square, float(rng.uniform(*s.t_range)), gen)
+        lam = distance_weight(rv.camera.center, self.cache.refs, self.cache.d_max)
+        if step % 100 == 0:
+            self.log.append(
+                {"step": step, "sds": round(float(loss_sds.detach()), 6), "lambda": round(lam, 4), "t": t}
+            )
+        return (self.decay(step) * lam * loss_sds).cpu()
+
+
 def repair_gaussians(
     coarse: Gaussians,
     views: list,
@@ -227,52 +288,7 @@ def repair_gaussians(
         None if checkpoint_dir is None else Path(checkpoint_dir) / "refresh",
         sh,
     )
-    log: list[dict] = []
-
-    def extra(step: int, g: Gaussians, out, view, index: int):
-        if step > settings.repair_iterations:
-            return None
-        if settings.loss == "sds":
-            return sds(step, g)
-        cache.ensure((step - 1) // max(settings.refresh_every, 1), g.detach())
-        pick = numpy_rng(seed, "repair_pick", step).integers(len(cache.views))
-        cv = cache.views[int(pick)]
-        rgb, _ = render_differentiable(g, cv.camera, 1.0, settings.backend, sh)
-        img = repair_image_loss(
-            hwc_to_bchw(rgb), hwc_to_bchw(cv.image), lpips, settings.l1, settings.l2, settings.lpips
-        )
-        weight = lrep_decay(step - 1, settings.repair_iterations, settings.lrep_start, settings.lrep_end)
-        loss = weight * cv.w * cv.lam * img
-        if step % 100 == 0:
-            log.append(
-                {
-                    "step": step,
-                    "l_rep": round(float(loss.detach()), 6),
-                    "w": round(cv.w, 4),
-                    "lambda": round(cv.lam, 4),
-                    "t": cv.timestep,
-                }
-            )
-        return loss
-
-    def sds(step: int, g: Gaussians) -> torch.Tensor:
-        """Score distillation on one novel view of the repair paths (same λ(π) and decay as L_rep)."""
-        rng = numpy_rng(int(seed), "sds", step)
-        gen = torch_generator(int(seed), "sds", step)
-        views = arcs.sample(rng, 1, name_prefix=f"sds_{step}")
-        rv = views[int(rng.integers(len(views)))]
-        rgb, alpha = render_differentiable(g, rv.camera, 1.0, settings.backend, sh)
-        frame = Frame.choose(rv.camera.height, rv.camera.width, alpha.detach())
-        square = frame.to_square(hwc_to_bchw(rgb), settings.resolution).to(diffusion.device)
-        loss_sds, t = diffusion.sds_loss(square, float(rng.uniform(*settings.t_range)), gen)
-        lam = distance_weight(rv.camera.center, cache.refs, cache.d_max)
-        weight = lrep_decay(step - 1, settings.repair_iterations, settings.lrep_start, settings.lrep_end)
-        if step % 100 == 0:
-            log.append(
-                {"step": step, "sds": round(float(loss_sds.detach()), 6), "lambda": round(lam, 4), "t": t}
-            )
-        return (weight * lam * loss_sds).cpu()
-
+    extra = _RepairLoss(arcs, cache, diffusion, settings, seed, sh, lpips, log=[])
     config = settings.training_config(sh)
     gen = torch_generator(int(seed), "repair_training")
     ckpt = (
@@ -294,7 +310,7 @@ def repair_gaussians(
     facts = {
         "resumed_from": stats.resumed_from,
         "refreshes_made": cache.made,
-        "l_rep_log": log[-20:],
+        "l_rep_log": extra.log[-20:],
         "cache": cache,
         "loss_log": stats.loss_log,  # every logged step (restored on resume): the training curves
     }
