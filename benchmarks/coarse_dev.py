@@ -318,7 +318,7 @@ def with_train_masks(scene, how: str):
     return scene
 
 
-def main(argv=None) -> int:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEV)
     ap.add_argument("--scenes", nargs="*", default=None)
@@ -351,6 +351,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/coarse_dev.json"))
     ap.add_argument("--merge", nargs="*", type=Path, default=None, help="merge these result files into --out")
     ap.add_argument("--table", type=Path, default=None, help="print a result file as a markdown table")
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = _parser()
     args = ap.parse_args(argv)
     if args.table:
         print(markdown_table(json.loads(args.table.read_text())))

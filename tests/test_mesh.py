@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from go_core.mesh.extract import clip_to_hull
+from go_core.mesh.extract import clip_to_hull, seen_vertices
 from go_core.mesh.files import read_ply, write_glb, write_ply
 from go_core.mesh.hull_mesh import hull_mesh
 from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes
@@ -46,6 +46,23 @@ def test_tsdf_recovers_a_sphere():
     assert abs(mesh.volume() / (4 / 3 * np.pi * RADIUS**3) - 1) < 0.02
     c = mesh.vertices[mesh.faces].mean(1)  # outward normals
     assert (np.einsum("ij,ij->i", mesh.face_normals(), c) > 0).mean() > 0.999
+
+
+def test_seen_vertices_keep_the_outer_surface_and_drop_a_wall_inside():
+    """Points on the sphere the views see are seen by some view; points on a sphere of half its radius
+    inside it (a wall inside a porous model) and points behind the surface by more than the truncation
+    are seen by none."""
+    cams = _cameras()
+    views = [View(c, *sphere_depth(c, RADIUS)) for c in cams]
+    rule = FusionRule(0.05, 0.5, 0.05, 0.0)
+    rng = np.random.default_rng(0)
+    dirs = rng.normal(size=(2000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    outer = seen_vertices(RADIUS * dirs, views, rule)
+    assert outer.mean() > 0.999
+    assert not seen_vertices(0.5 * RADIUS * dirs, views, rule).any()
+    assert not seen_vertices((RADIUS - 0.08) * dirs, views, rule).any()  # 0.08 > the truncation 0.05
+    assert not seen_vertices(np.array([[0.0, 0.0, 50.0]]), views, rule).any()  # behind every camera
 
 
 def test_tsdf_recovers_a_cube():

@@ -13,7 +13,14 @@ import numpy as np
 from go_core.camera import Camera
 from go_core.mesh.hull_mesh import hull_field
 from go_core.mesh.settings import MeshSettings
-from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes, sample_colours
+from go_core.mesh.surface import (
+    TriMesh,
+    compact,
+    decimate,
+    largest_component,
+    marching_cubes,
+    sample_colours,
+)
 from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_band
 from go_core.mesh.views import fusion_cameras
 
@@ -65,12 +72,37 @@ def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
     )
 
 
-def fuse(gaussians, cameras: list[Camera], grid: VoxelGrid, settings: MeshSettings) -> Tsdf:
-    """The TSDF of ``gaussians`` seen from ``cameras``."""
+def fusion_views(gaussians, cameras: list[Camera], settings: MeshSettings) -> list[View]:
+    """The rendered maps of ``gaussians`` from ``cameras`` that the fusion reads."""
     maps = render_maps(
         gaussians, cameras, settings.backend, settings.batch, settings.depth, settings.carve_alpha
     )
-    return fuse_narrow_band(grid, [View(*m) for m in maps], fusion_rule(settings, grid.voxel))
+    return [View(*m) for m in maps]
+
+
+def fuse(gaussians, cameras: list[Camera], grid: VoxelGrid, settings: MeshSettings) -> Tsdf:
+    """The TSDF of ``gaussians`` seen from ``cameras``."""
+    return fuse_narrow_band(
+        grid, fusion_views(gaussians, cameras, settings), fusion_rule(settings, grid.voxel)
+    )
+
+
+def seen_vertices(vertices: np.ndarray, views: list[View], rule: FusionRule) -> np.ndarray:
+    """bool [V]: the vertices that at least one view sees as surface: their pixel has alpha at least
+    ``rule.alpha_threshold`` and a depth within ``rule.truncation`` of theirs (the fusion's own surface
+    test). A wall inside a porous model, reached only by rays that carve through it, is seen by none."""
+    seen = np.zeros(len(vertices), bool)
+    for view in views:
+        uv, z = view.camera.project(vertices)
+        h, w = view.alpha.shape
+        uv = np.where(np.isfinite(uv) & (z > 0)[:, None], uv, -1.0)
+        col, row = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        idx = np.nonzero((col >= 0) & (col < w) & (row >= 0) & (row < h))[0]
+        d = view.depth[row[idx], col[idx]]
+        a = view.alpha[row[idx], col[idx]]
+        hit = (a >= rule.alpha_threshold) & np.isfinite(d) & (np.abs(d - z[idx]) <= rule.truncation)
+        seen[idx[hit]] = True
+    return seen
 
 
 def clip_to_hull(
@@ -99,11 +131,16 @@ def mesh_from_gaussians(
     t0 = time.perf_counter()
     cameras = fusion_cameras(train_cameras, settings.ellipse_views, settings.sphere_views, settings.max_size)
     grid = VoxelGrid.around(box[0], box[1], settings.resolution)
-    tsdf = fuse(gaussians, cameras, grid, settings)
+    views, rule = fusion_views(gaussians, cameras, settings), fusion_rule(settings, grid.voxel)
+    tsdf = fuse_narrow_band(grid, views, rule)
     if settings.clip_to_hull:
         tsdf.field = clip_to_hull(tsdf.field, grid, train_cameras, masks)
     t1 = time.perf_counter()
     raw = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
+    faces_found = len(raw.faces)
+    if settings.seen_only:
+        seen = seen_vertices(raw.vertices, views, rule)
+        raw = largest_component(compact(raw, seen[raw.faces].any(axis=1)))
     mesh = decimate(raw, settings.max_faces)
     mesh.colours = sample_colours(
         mesh.vertices, tsdf.colour_sums, tsdf.colour_counts, grid.origin, grid.voxel
@@ -115,6 +152,7 @@ def mesh_from_gaussians(
         "grid": list(grid.shape),
         "voxel": grid.voxel,
         "truncation": settings.truncation_voxels * grid.voxel,
+        "faces_unseen_dropped": int(faces_found - len(raw.faces)),
         "faces_before_decimation": int(len(raw.faces)),
         "vertices": int(len(mesh.vertices)),
         "faces": int(len(mesh.faces)),
