@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from go_core.mesh.extract import clip_to_hull, seen_vertices
+from go_core.errors import CollapsedModelError
+from go_core.mesh.extract import clip_to_hull, drop_unseen, seen_vertices
 from go_core.mesh.files import read_ply, write_glb, write_ply
 from go_core.mesh.hull_mesh import hull_mesh
 from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes
@@ -63,6 +64,27 @@ def test_seen_vertices_keep_the_outer_surface_and_drop_a_wall_inside():
     assert not seen_vertices(0.5 * RADIUS * dirs, views, rule).any()
     assert not seen_vertices((RADIUS - 0.08) * dirs, views, rule).any()  # 0.08 > the truncation 0.05
     assert not seen_vertices(np.array([[0.0, 0.0, 50.0]]), views, rule).any()  # behind every camera
+
+
+def test_drop_unseen_keeps_the_seen_shell_and_refuses_a_mesh_nobody_sees():
+    """A hollow ball (radii 0.4 and 0.8) meshes as two spheres; the views see the outer one only, so the
+    inner wall goes and the outer sphere stays whole. With every view empty nothing is seen and the mesh
+    is refused (a see-through model), not returned empty."""
+    cams = _cameras()
+    views = [View(c, *sphere_depth(c, RADIUS)) for c in cams]
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 48)
+    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05, 0.0)
+    axes = [grid.origin[i] + grid.voxel * np.arange(grid.shape[i]) for i in range(3)]
+    r = np.linalg.norm(np.stack(np.meshgrid(*axes, indexing="ij")), axis=0)
+    hollow = marching_cubes(np.maximum(r - RADIUS, 0.5 * RADIUS - r), grid.origin, grid.voxel)
+    radii = np.linalg.norm(hollow.vertices, axis=1)
+    assert radii.min() < 0.6 * RADIUS and radii.max() > 0.9 * RADIUS  # both walls are there
+    kept = drop_unseen(hollow, views, rule)
+    assert np.linalg.norm(kept.vertices, axis=1).min() > 0.9 * RADIUS  # the inner wall is gone
+    assert len(kept.faces) == np.count_nonzero(radii[hollow.faces].min(axis=1) > 0.75 * RADIUS)
+    empty = [View(c, np.full((c.height, c.width), np.nan), np.zeros((c.height, c.width))) for c in cams]
+    with pytest.raises(CollapsedModelError, match="see-through"):
+        drop_unseen(hollow, empty, rule)
 
 
 def test_tsdf_recovers_a_cube():

@@ -105,6 +105,21 @@ def seen_vertices(vertices: np.ndarray, views: list[View], rule: FusionRule) -> 
     return seen
 
 
+def drop_unseen(mesh: TriMesh, views: list[View], rule: FusionRule) -> TriMesh:
+    """The largest component of the faces of ``mesh`` that have a vertex some view sees as surface
+    (``seen_vertices``); a ``CollapsedModelError`` when no view sees any: the model is see-through from
+    every direction, and a mesh of it would be the hull's clip, not the object."""
+    from go_core.errors import CollapsedModelError
+
+    keep = seen_vertices(mesh.vertices, views, rule)[mesh.faces].any(axis=1)
+    if not keep.any():
+        raise CollapsedModelError(
+            f"no view of the {len(views)} fusion views sees any of the mesh's {len(mesh.faces)} faces as "
+            "surface (the model is see-through from every direction)"
+        )
+    return largest_component(compact(mesh, keep))
+
+
 def clip_to_hull(
     field: np.ndarray, grid: VoxelGrid, cameras: list[Camera], masks: list[np.ndarray], threshold: float = 0.5
 ) -> np.ndarray:
@@ -139,8 +154,7 @@ def mesh_from_gaussians(
     raw = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
     faces_found = len(raw.faces)
     if settings.seen_only:
-        seen = seen_vertices(raw.vertices, views, rule)
-        raw = largest_component(compact(raw, seen[raw.faces].any(axis=1)))
+        raw = drop_unseen(raw, views, rule)
     mesh = decimate(raw, settings.max_faces)
     mesh.colours = sample_colours(
         mesh.vertices, tsdf.colour_sums, tsdf.colour_counts, grid.origin, grid.voxel
