@@ -21,7 +21,7 @@ from go_core.mesh.surface import (
     marching_cubes,
     sample_colours,
 )
-from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_band
+from go_core.mesh.tsdf import FusionRule, View, VoxelGrid, fuse_narrow_band
 from go_core.mesh.views import fusion_cameras
 
 
@@ -78,13 +78,6 @@ def fusion_views(gaussians, cameras: list[Camera], settings: MeshSettings) -> li
         gaussians, cameras, settings.backend, settings.batch, settings.depth, settings.carve_alpha
     )
     return [View(*m) for m in maps]
-
-
-def fuse(gaussians, cameras: list[Camera], grid: VoxelGrid, settings: MeshSettings) -> Tsdf:
-    """The TSDF of ``gaussians`` seen from ``cameras``."""
-    return fuse_narrow_band(
-        grid, fusion_views(gaussians, cameras, settings), fusion_rule(settings, grid.voxel)
-    )
 
 
 def seen_vertices(vertices: np.ndarray, views: list[View], rule: FusionRule) -> np.ndarray:
