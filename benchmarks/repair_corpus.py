@@ -297,6 +297,7 @@ def write_manifest(args, index: dict) -> dict:
             "usable_train": sum(e["split"] == "train" for e in kept),
             "usable_val": sum(e["split"] == "val" for e in kept),
             "made": len(done),
+            "failed": len(list((args.out / "objects").glob("*/failed.json"))),
             "made_train": sum(d["split"] == "train" for d in done.values()),
             "made_val": sum(d["split"] == "val" for d in done.values()),
             "novel_pairs": sum(d["novel_pairs"] for d in done.values()),
@@ -312,6 +313,9 @@ def write_manifest(args, index: dict) -> dict:
             if e["excluded"]
         ],
         "skipped": index["skipped"],
+        "failed": [
+            json.loads(path.read_text()) for path in sorted((args.out / "objects").glob("*/failed.json"))
+        ],
         "usable": [
             {k: e[k] for k in ("name", "licence", "split", "group", "nearest", "chamfer", "ratio_gap")}
             for e in kept
@@ -364,7 +368,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
+FINISHED = ("object.json", "failed.json")  # an object made, or one whose coarse stage failed (not retried)
+
+
 def main(argv=None) -> int:
+    from go_core.errors import CollapsedModelError, first_line
+    from go_core.io.atomic import atomic_write_json
+
     args = parse_args(argv)
     t_start = time.perf_counter()
     assets_root = args.assets if args.assets is not None else fetch_assets(args.cache)
@@ -381,9 +391,9 @@ def main(argv=None) -> int:
         e
         for e in _order([e for e in index["objects"] if not e["excluded"]], args.seed)
         if (args.only is None or e["name"] in args.only)
-        and not (args.out / "objects" / e["name"].replace("/", "__") / "object.json").exists()
+        and not any((args.out / "objects" / e["name"].replace("/", "__") / f).exists() for f in FINISHED)
     ]
-    made, durations = 0, []
+    made, failed, durations = 0, 0, []
     for entry in pending:
         elapsed = time.perf_counter() - t_start
         expected = (
@@ -391,7 +401,15 @@ def main(argv=None) -> int:
         )  # an object takes about as long as the last
         if (elapsed + expected) / 60 > args.budget_min or (args.limit and made >= args.limit):
             break
-        info = make_object(entry, assets_root, args)
+        try:
+            info = make_object(entry, assets_root, args)
+        except CollapsedModelError as exc:  # the coarse stage at defaults fails here: recorded, not made
+            folder = args.out / "objects" / entry["name"].replace("/", "__")
+            atomic_write_json(folder / "failed.json", {"name": entry["name"], "reason": first_line(exc)})
+            shutil.rmtree(folder / "work", ignore_errors=True)
+            print(f"{entry['name']}: coarse stage failed: {first_line(exc)}", flush=True)
+            failed += 1
+            continue
         durations.append(time.perf_counter() - t_start - elapsed)
         made += 1
         print(
@@ -401,7 +419,7 @@ def main(argv=None) -> int:
             flush=True,
         )
     manifest = write_manifest(args, index)
-    left = len(pending) - made
+    left = len(pending) - made - failed
     print(
         f"made {made} objects this call; {manifest['counts']['made']} of {manifest['counts']['usable']} done"
     )

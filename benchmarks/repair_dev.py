@@ -5,11 +5,16 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               noise_pairs → tune (per-scene tuning) → repair → eval
   pretrained  ablation "pretrained only, no tuning": --set tune.finetune=false
   no_repair   ablation "no repair": --set repair.mode=no_repair (eval scores the coarse model)
+  realesr     the compact restorer realesr-animevideov3-x4, tuned (the default before the repair prior)
+  prior       the repair prior trained on the corpus (issue 34), tuned; prior_pretrained: not tuned;
+              prior_no_alpha: without its alpha as a mask target (repair.alpha_weight=0);
+              prior_no_reference: the prior trained without the reference input (go-repair-prior-1-noref)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
 and CPU seconds of every step from its manifest (the step's original run, also when cached here). Writes a
-JSON and one contact sheet per scene (rows: truth / coarse / repaired, for ``--sheet-views`` test views).
+JSON and one contact sheet per scene (rows: truth / coarse / the repaired models of SHEET_ROWS that ran, for
+``--sheet-views`` test views).
 
     nice -n 10 python benchmarks/repair_dev.py --scenes milk basket --workroot /tmp/repair_dev \
         --out benchmarks/results/repair_dev.json --sheets docs/img
@@ -27,11 +32,18 @@ from pathlib import Path
 import numpy as np
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
+PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34, docs/repair_prior.md)
 VARIANTS = {
     "full": {},
     "pretrained": {"tune.finetune": False},
     "no_repair": {"repair.mode": "no_repair"},
+    "realesr": {"weights.compact_model": "realesr-animevideov3-x4"},  # the restorer before the prior
+    "prior": {"weights.compact_model": PRIOR},
+    "prior_pretrained": {"weights.compact_model": PRIOR, "tune.finetune": False},
+    "prior_no_alpha": {"weights.compact_model": PRIOR, "repair.alpha_weight": 0.0},
+    "prior_no_reference": {"weights.compact_model": PRIOR + "-noref"},
 }
+SHEET_ROWS = ("realesr", "full", "prior")  # contact-sheet rows after truth and coarse, when they ran
 STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "eval")
 
 
@@ -46,7 +58,7 @@ def loo_pair_psnr(loo_dir: Path) -> float:
     with np.load(Path(loo_dir) / "loo_pairs.npz") as data:
         arrays = {k: data[k].astype(np.float64) / 255.0 for k in data.files}
     pairs = json.loads((Path(loo_dir) / "loo.json").read_text())["pairs"]
-    mse = [np.mean((arrays[p["degraded"]] - arrays[p["clean"]]) ** 2) for p in pairs]
+    mse = [np.mean((arrays[p["degraded"]][..., :3] - arrays[p["clean"]]) ** 2) for p in pairs]  # RGB of RGBA
     return float(np.mean([-10.0 * np.log10(max(m, 1e-12)) for m in mse]))
 
 
@@ -58,8 +70,9 @@ def _geometry(geometry: dict | None) -> dict | None:
     return {mesh: {k: geometry[mesh][k] for k in keys} for mesh in ("final", "hull")}
 
 
-def _sheet(scene_dir: Path, coarse_eval: Path, full_eval: Path, out: Path, views: int, workdir: Path) -> None:
-    """Truth / coarse / repaired rows for the first ``views`` test views (renders made again, white bg)."""
+def _sheet(scene_dir: Path, repaired: list[Path], out: Path, views: int, workdir: Path) -> None:
+    """Rows truth / coarse / one per repaired model (``repaired``: repair artifact dirs, in order) for
+    ``views`` test views (renders made again, white background)."""
     import torch
     from PIL import Image
 
@@ -68,31 +81,52 @@ def _sheet(scene_dir: Path, coarse_eval: Path, full_eval: Path, out: Path, views
     from go_core.repair.data import render_rgb_alpha, to_uint8
     from go_core.scene.artifact import load_scene_artifact
 
-    del coarse_eval, full_eval
+    del scene_dir
     arts = workdir / "artifacts"
 
     def newest(step: str) -> Path:
         return max((d for d in (arts / step).iterdir() if d.is_dir()), key=lambda d: d.stat().st_mtime)
 
     scene = load_scene_artifact(newest("scene"))
-    coarse = Gaussians.load(newest("coarse") / "gaussians.npz")
-    repaired_dirs = [d for d in (arts / "repair").iterdir() if (d / "gaussians.npz").exists()]
-    full = [
-        d for d in repaired_dirs if json.loads((d / "repair.json").read_text()).get("lora") == "fine-tuned"
-    ]
-    repaired = Gaussians.load(max(full, key=lambda d: d.stat().st_mtime) / "gaussians.npz")
+    models = [Gaussians.load(newest("coarse") / "gaussians.npz")]
+    models += [Gaussians.load(d / "gaussians.npz") for d in repaired]
     idx = np.linspace(0, len(scene.test) - 1, views).round().astype(int)
-    rows = [[], [], []]
+    rows = [[] for _ in range(1 + len(models))]
     with torch.no_grad():
         for i in idx:
             v, cam = scene.test[i], scene.test_cameras[i]
             rows[0].append(to_uint8(composite(v.image, v.mask)))
-            rows[1].append(to_uint8(render_rgb_alpha(coarse, cam, 1.0)[0]))
-            rows[2].append(to_uint8(render_rgb_alpha(repaired, cam, 1.0)[0]))
+            for row, model in zip(rows[1:], models, strict=True):
+                row.append(to_uint8(render_rgb_alpha(model, cam, 1.0)[0]))
     sheet = np.concatenate([np.concatenate(r, axis=1) for r in rows], axis=0)
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(sheet).save(out, format="JPEG", quality=88)
-    del scene_dir
+
+
+def _against(base: str, scenes: dict) -> dict:
+    """Each variant against ``base`` on the scenes that ran both: per-scene PSNR and LPIPS* changes, the
+    mean PSNR change and whether LPIPS* is lower on every scene (issue 34's check, prior vs realesr)."""
+    out = {}
+    names = {v for s in scenes.values() for v in s["variants"]} - {base}
+    for variant in sorted(names):
+        both = {
+            n: s["variants"] for n, s in scenes.items() if base in s["variants"] and variant in s["variants"]
+        }
+        if not both:
+            continue
+        per = {
+            n: {
+                "psnr_change": round(v[variant]["psnr"] - v[base]["psnr"], 3),
+                "lpips_star_change": round(v[variant]["lpips_star"] - v[base]["lpips_star"], 3),
+            }
+            for n, v in both.items()
+        }
+        out[variant] = {
+            "scenes": per,
+            "mean_psnr_change": round(float(np.mean([d["psnr_change"] for d in per.values()])), 3),
+            "lpips_lower_on_every_scene": all(d["lpips_star_change"] < 0 for d in per.values()),
+        }
+    return out
 
 
 def main() -> None:
@@ -101,7 +135,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEV)
     ap.add_argument("--workroot", type=Path, required=True)
     ap.add_argument("--set", dest="overrides", action="append", default=[], help="STEP.PARAM=VALUE for all")
-    ap.add_argument("--variants", nargs="+", default=list(VARIANTS))
+    ap.add_argument("--variants", nargs="+", default=["full", "pretrained", "no_repair"], choices=VARIANTS)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--sheets", type=Path, default=None, help="folder for <scene>_repair_sheet.jpg")
     ap.add_argument("--sheet-views", type=int, default=6)
@@ -144,6 +178,9 @@ def main() -> None:
                 "repair_model": metrics.get("repair_model", ""),
                 "run_wall_s": round(time.perf_counter() - t0, 1),
                 "eval_dir": str(summary.step("eval").artifact_dir),
+                "repair_dir": str(summary.step("repair").artifact_dir)
+                if (summary.step("repair").artifact_dir / "gaussians.npz").exists()
+                else None,
                 "error_split": (metrics.get("error_split") or {}).get("regions"),
                 "geometry": _geometry(metrics.get("geometry")),
             }
@@ -166,8 +203,10 @@ def main() -> None:
         if "full" in v and "no_repair" in v:
             entry["lpips_star_gain"] = v["no_repair"]["lpips_star"] - v["full"]["lpips_star"]
             entry["psnr_change"] = v["full"]["psnr"] - v["no_repair"]["psnr"]
-        if args.sheets is not None and "full" in v:
-            _sheet(scene_dir, None, None, args.sheets / f"{name}_repair_sheet.jpg", args.sheet_views, workdir)
+        repaired = [Path(v[k]["repair_dir"]) for k in SHEET_ROWS if k in v and v[k].get("repair_dir")]
+        if args.sheets is not None and repaired:
+            _sheet(scene_dir, list(dict.fromkeys(repaired)), args.sheets / f"{name}_repair_sheet.jpg",
+                   args.sheet_views, workdir)  # fmt: skip
         result["scenes"][name] = entry
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
@@ -179,6 +218,7 @@ def main() -> None:
             "mean_psnr_change": float(np.mean([s["psnr_change"] for s in done])),
             "mean_lpips_star_gain": float(np.mean([s["lpips_star_gain"] for s in done])),
         }
+    result["against_realesr"] = _against("realesr", result["scenes"])
     result["load_average_end"] = os.getloadavg()
     args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
 

@@ -14,7 +14,8 @@ on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch, numpy and thi
 
 Writes ``<out>/prior.safetensors`` (weights + config + training facts in the metadata) and
 ``<out>/train_log.json`` (loss curve, validation PSNR / LPIPS* / alpha IoU of the coarse input and the
-restored output, per validation object, settings, CPU time).
+restored output, per held-out object: the val split, and the train objects of any family ``--families``
+leaves out; settings, CPU time).
 """
 
 from __future__ import annotations
@@ -57,6 +58,16 @@ def _references(d, mode: str) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(rgbs), np.stack(alphas)
 
 
+def _wanted(info: dict, split: str, families: list[str] | None) -> bool:
+    """Split ``train``: the train objects of ``families`` (default all). Split ``held_out``: every object
+    the training never sees, the val objects and the train objects of the families left out."""
+    family = info["name"].split("/")[0]
+    in_families = not families or family in families
+    if split == "held_out":
+        return info["split"] == "val" or not in_families
+    return info["split"] == split and in_families
+
+
 def load_split(
     corpus: Path,
     split: str,
@@ -64,12 +75,12 @@ def load_split(
     families: list[str] | None = None,
     only: list[str] | None = None,
 ) -> dict:
-    """Every pair of the finished objects of ``split`` (of ``families``, default all; of ``only`` when given)
-    as float32 arrays [N, H, W, C] in [0, 1] (inputs, reference, targets) and the object of each pair."""
+    """Every pair of the finished objects of ``split`` (``_wanted``; of ``only`` when given) as float32
+    arrays [N, H, W, C] in [0, 1] (inputs, reference, targets) and the object of each pair."""
     names, inp, alpha, ref, ref_alpha, tgt, tgt_alpha = [], [], [], [], [], [], []
     for info_path in sorted((corpus / "objects").glob("*/object.json")):
         info = json.loads(info_path.read_text())
-        if info["split"] != split or (families and info["name"].split("/")[0] not in families):
+        if not _wanted(info, split, families):
             continue
         if only is not None and info["name"] not in only:
             continue
@@ -285,7 +296,7 @@ def train(args) -> dict:
         "resumed_from": start,
     }
     if not args.no_val:
-        val = load_split(args.corpus, "val", args.reference, args.families)
+        val = load_split(args.corpus, "held_out", args.reference, args.families)
         result["validation"] = evaluate(model, lpips, val, args, args.device)
     extra = {"steps": args.steps, "train_objects": state["objects"]}
     save_prior(args.out / "prior.safetensors", model.cpu(), extra)

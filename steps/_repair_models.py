@@ -64,14 +64,14 @@ class CompactModel:
 
     def tune(self, ctx, inputs: dict[str, Path], params: TuneParams) -> None:
         """Per-scene full fine-tune of the compact restorer (steps/tune.py)."""
-        from go_core.compact.restorer import CompactRestorer
+        from go_core.compact.restorer import load_restorer
         from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
         from go_core.io.safetensors_file import write_safetensors
         from go_core.repair.data import training_views
-        from go_core.repair.pairs import LooPairs, pair_tensors
+        from go_core.repair.pairs import LooPairs, pair_tensors, training_view_references, with_reference
 
         info = compact_info(inputs)
-        model = CompactRestorer.load(info["name"])  # missing or corrupt weights: one MissingWeightsError
+        model = load_restorer(info["name"])  # missing or corrupt weights: one MissingWeightsError
         base = {"repair_model": "compact", "compact": info}
         if not params.finetune:
             art.write_json(
@@ -100,18 +100,23 @@ class CompactModel:
             )
         _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
         source = _pair_source(inputs, params, views)
-        loo = LooPairs(inputs["loo"])
-        loo_pairs = [pair_tensors(loo.get(i), settings.resolution) for i in range(len(loo))]
+        draw, loo = source.draw, LooPairs(inputs["loo"])
+        held = [loo.get(i) for i in range(len(loo))]
+        if model.channels == 8:  # a prior with a reference input: each pair gets its view's reference
+            refs = training_view_references(views, source.coarse, params.backend)
+            draw = lambda rng, gen: with_reference(source.draw(rng, gen), refs)  # noqa: E731
+            held = [with_reference(p, refs) for p in held]
+        loo_pairs = [pair_tensors(p, settings.resolution, model.channels) for p in held]
         before = held_out_loss(model, loo_pairs)
         bar = ResumedProgress(ctx, settings.steps, "compact tuning")
         summary = tune_compact(
-            model, source.draw, source.schedule, settings, ctx.seed, Path(ctx.checkpoint_dir),
+            model, draw, source.schedule, settings, ctx.seed, Path(ctx.checkpoint_dir),
             on_step=lambda step, loss: bar.advance(step), fingerprint_extra=info["sha256"],
         )  # fmt: skip
         bar.close()
         after = held_out_loss(model, loo_pairs)
         resumed_from = summary.pop("resumed_from")
-        tensors = {k: v.contiguous() for k, v in model.net.ncnn_tensors().items()}
+        tensors = model.tuned_tensors()
         meta = {"name": info["name"], "base_sha256": info["sha256"], "tuned_steps": str(settings.steps)}
         write_safetensors(art.COMPACT_WEIGHTS.path(ctx.out_dir), tensors, meta)
         out = {
@@ -153,12 +158,12 @@ class CompactModel:
         from safetensors.torch import load_file
 
         from go_core.compact.engine import CompactRepair
-        from go_core.compact.restorer import CompactRestorer
+        from go_core.compact.restorer import load_restorer
 
-        restorer = CompactRestorer.load(tune_info["compact"]["name"])  # one clear error when absent/corrupt
+        restorer = load_restorer(tune_info["compact"]["name"])  # one clear error when absent/corrupt
         tuned = use_lora and tune_info.get("status") == "ok"
         if tuned:
-            restorer.net.load_ncnn_tensors(load_file(str(Path(inputs["tune"]) / tune_info["tuned"])))
+            restorer.load_tuned(load_file(str(Path(inputs["tune"]) / tune_info["tuned"])))
         return CompactRepair(restorer, device), "fine-tuned" if tuned else "pretrained (no fine-tuning)"
 
 

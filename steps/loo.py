@@ -12,8 +12,8 @@ Runs are independent: on a CPU they run in parallel processes, one per thread of
 not depend on the thread count). Each finished run is kept in ``ctx.checkpoint_dir`` so a killed step
 resumes where it was.
 
-Outputs: ``loo.json`` (runs, statistics, pair index), ``loo_pairs.npz`` (``degraded_<k>_<j>``,
-``clean_<k>``, ``mask_<k>`` uint8 arrays).
+Outputs: ``loo.json`` (runs, statistics, pair index), ``loo_pairs.npz`` (uint8 arrays
+``degraded_<k>_<j>``: the render on white and its alpha, RGBA; ``clean_<k>``; ``mask_<k>``).
 """
 
 from __future__ import annotations

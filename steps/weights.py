@@ -35,8 +35,13 @@ if TYPE_CHECKING:
 def _compact_info(name: str) -> dict:
     import hashlib
 
+    from go_core.compact.prior import SHIPPED, shipped_prior_path
     from go_core.compact.weights import MODELS, WHEELS, check_compact_weights
 
+    if name in SHIPPED:  # a repair prior trained here and shipped in the package (docs/repair_prior.md)
+        path = shipped_prior_path(name)  # one MissingWeightsError naming the file
+        return {"name": name, "file": str(path), "sha256": SHIPPED[name], "scale": 1,
+                "source": "go-pipeline repair prior (docs/repair_prior.md)"}  # fmt: skip
     path = check_compact_weights(name)  # one MissingWeightsError naming the file and the fetch command
     model = MODELS[name]
     return {

@@ -299,3 +299,207 @@ def test_pretrained_ablation_and_sds_refusal(upstream, tmp_path, tiny_cache):
     assert json.loads((rep.out_dir / "repair.json").read_text())["lora"] == "pretrained (no fine-tuning)"
     with pytest.raises(GoError, match="sd15"):
         _repair(tmp_path / "s", dirs, ctx.out_dir, {**REPAIR, "loss": "sds"})
+
+
+# --- a repair prior (issue 34) as the compact model: RGB + alpha through tuning and repair -------------
+
+
+def _install_tiny_prior(tmp_path: Path, monkeypatch, reference: bool = False) -> Path:
+    """A small, non-identity repair prior installed as the shipped prior ``tiny-prior`` (pinned SHA-256)."""
+    import hashlib
+
+    from go_core.compact import prior
+    from go_core.seeding import seeded_torch_init
+
+    with seeded_torch_init(0, "test_prior"):
+        model = prior.RepairPrior(prior.PriorConfig(width=8, levels=2, reference=reference))
+    with torch.no_grad():
+        model.head.weight.normal_(0.0, 0.01, generator=torch.Generator().manual_seed(1))
+    folder = tmp_path / "priors"
+    path = prior.save_prior(folder / "tiny-prior.safetensors", model)
+    monkeypatch.setattr(prior, "SHIPPED_DIR", folder)
+    monkeypatch.setattr(prior, "SHIPPED", {"tiny-prior": hashlib.sha256(path.read_bytes()).hexdigest()})
+    return path
+
+
+@pytest.fixture()
+def tiny_prior(tmp_path, monkeypatch):
+    return _install_tiny_prior(tmp_path, monkeypatch)
+
+
+@pytest.fixture(params=[False, True], ids=["no_reference", "reference"])
+def tiny_prior_any(tmp_path, monkeypatch, request):
+    """The tiny prior without and with the reference input (8 channels)."""
+    return _install_tiny_prior(tmp_path, monkeypatch, request.param)
+
+
+PRIOR = {"repair_model": "compact", "compact_model": "tiny-prior"}
+
+
+def _tune_prior(root: Path, dirs: dict, params: dict) -> FakeCtx:
+    from go_pipeline.steps import tune
+
+    weights = run_weights_step(root / "weights", PRIOR)
+    ctx = FakeCtx(root, "tune")
+    tune.run(ctx, {**dirs, "weights": weights}, step_params(tune.__name__, params))
+    return ctx
+
+
+def test_leave_one_out_pairs_keep_the_render_alpha_for_a_prior(upstream):
+    from go_core.gaussians import Gaussians
+    from go_core.repair.data import render_rgb_alpha, training_views
+    from go_core.repair.pairs import LooPairs, pair_tensors
+
+    root, dirs = upstream
+    loo = LooPairs(dirs["loo"])
+    last = max(range(len(loo)), key=lambda i: (loo.pairs[i]["view"] == 0, loo.pairs[i]["phase2_step"]))
+    pair = loo.get(last)  # run 0's render after phase 2: its model is the run's after.npz
+    assert pair.degraded_alpha is not None and pair.degraded.shape[-1] == 3
+    (after,) = root.rglob("run_00/after.npz")
+    cam = training_views(dirs["scene"], dirs["mask"], dirs["coarse"])[1][0].camera
+    _, alpha = render_rgb_alpha(Gaussians.load(after), cam, 1.0, "auto")
+    torch.testing.assert_close(pair.degraded_alpha, (alpha * 255).round() / 255, atol=1 / 255 + 1e-6, rtol=0)
+    deg, clean = pair_tensors(pair, 32, channels=4)
+    assert deg.shape == clean.shape == (1, 4, 32, 32)
+    rgb_deg, rgb_clean = pair_tensors(pair, 32)
+    assert torch.equal(deg[:, :3], rgb_deg) and torch.equal(clean[:, :3], rgb_clean)
+    # the target alpha is the clean view's mask: 0 where the clean photo is white background
+    background = (rgb_clean[0] > 0.999).all(0)
+    assert float(clean[0, 3][background].max()) < 0.05
+
+
+def test_pair_alpha_is_framed_with_an_empty_background():
+    """A wide view is padded to a square: the padding is white in RGB and 0 (no object) in alpha."""
+    from go_core.repair.pairs import Pair, pair_tensors
+
+    h, w = 16, 32
+    mask = torch.zeros(h, w)
+    mask[4:12, 2:30] = 1.0  # wider than the centred square: the frame pads to 32 x 32
+    pair = Pair(torch.full((h, w, 3), 0.5), torch.full((h, w, 3), 0.25), mask, "noise", 0, mask.clone())
+    deg, clean = pair_tensors(pair, 32, channels=4)
+    assert torch.equal(deg[0, 3, :8], torch.zeros(8, 32)) and torch.equal(
+        deg[0, :3, :8], torch.ones(3, 8, 32)
+    )
+    assert torch.equal(clean[0, 3, 8:24], mask)
+    with pytest.raises(ValueError, match="alpha"):
+        pair_tensors(Pair(pair.degraded, pair.clean, mask, "loo", 0), 32, channels=4)
+
+
+def test_prior_restorer_is_one_module_for_any_size(tiny_prior):
+    from go_core.compact.restorer import load_restorer
+
+    model = load_restorer("tiny-prior")
+    assert model.channels == 4 and model.scale == 1
+    x = torch.rand(1, 4, 30, 22, generator=torch.Generator().manual_seed(0))
+    y = model.restore(x)
+    assert y.shape == x.shape and float(y.min()) >= 0 and float(y.max()) <= 1
+    assert 0 < float((y - x).abs().max()) < 0.2  # a small, non-zero correction (head weights ~0.01)
+    # padding to the U-Net's multiple is replicate: the crop of a padded input is the same as the original
+    padded = torch.nn.functional.pad(x, (0, 2, 0, 2), mode="replicate")
+    torch.testing.assert_close(model.restore(padded)[..., :30, :22], y, atol=0.2, rtol=0)
+
+
+def test_shipped_prior_changed_on_disk_is_one_error_naming_it(tmp_path, tiny_prior):
+    from go_pipeline.steps import weights
+
+    from go_core.errors import MissingWeightsError
+
+    out = run_weights_step(tmp_path / "ok", PRIOR)
+    info = json.loads((out / "weights.json").read_text())["compact"]
+    assert info["name"] == "tiny-prior" and info["scale"] == 1 and info["file"] == str(tiny_prior)
+    data = bytearray(tiny_prior.read_bytes())
+    data[-1] ^= 0xFF
+    tiny_prior.write_bytes(bytes(data))
+    ctx = FakeCtx(tmp_path / "bad", "weights")
+    with pytest.raises(MissingWeightsError) as err:
+        weights.run(
+            ctx, {}, step_params(weights.__name__, {"repair_model": "compact", "compact_model": "tiny-prior"})
+        )
+    assert str(tiny_prior) in str(err.value) and "SHA-256" in str(err.value)
+    tiny_prior.unlink()
+    with pytest.raises(MissingWeightsError, match="missing"):
+        weights.run(
+            ctx, {}, step_params(weights.__name__, {"repair_model": "compact", "compact_model": "tiny-prior"})
+        )
+
+
+def _blob_pair(rng: np.random.Generator, size: int = 32):
+    """A synthetic pair: a disc of one colour (the clean view) and its box-blurred, dimmed render with a
+    dilated alpha (the degraded view), as a coarse model's render differs from the photo."""
+    from go_core.repair.pairs import Pair
+
+    yy, xx = np.mgrid[:size, :size]
+    cy, cx, r = rng.uniform(10, 22, 2).tolist() + [float(rng.uniform(5, 9))]
+    disc = ((yy - cy) ** 2 + (xx - cx) ** 2 < r**2).astype(np.float32)
+    wide = ((yy - cy) ** 2 + (xx - cx) ** 2 < (r + 2) ** 2).astype(np.float32)
+    clean = rng.uniform(0.1, 0.9, 3).astype(np.float32) * disc[..., None] + (1 - disc[..., None])
+    blur = sum(np.roll(clean, k, axis=0) for k in range(-2, 3)) / 5.0
+    degraded = np.clip(0.85 * blur + 0.1, 0, 1).astype(np.float32)
+    t = torch.from_numpy
+    return Pair(t(degraded), t(clean), t(disc), "noise", 0, t(wide))
+
+
+def test_prior_tuning_lowers_its_rgb_and_alpha_loss_on_held_back_pairs(tiny_prior):
+    """Tuned on synthetic (blurred, dilated) -> (sharp disc) pairs, the prior's 4-channel loss on other
+    pairs of the same kind drops, in RGB and in alpha."""
+    from go_core.compact.restorer import load_restorer
+    from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
+    from go_core.repair.noise import PairSchedule
+    from go_core.repair.pairs import pair_tensors
+
+    model = load_restorer("tiny-prior")
+    held = [pair_tensors(_blob_pair(np.random.default_rng(100 + i)), 32, 4) for i in range(6)]
+    alpha_err = lambda: float(np.mean([(model.restore(d)[:, 3] - c[:, 3]).abs().mean() for d, c in held]))  # noqa: E731
+    before, alpha_before = held_out_loss(model, held), alpha_err()
+    settings = CompactTuneSettings(steps=60, lr=3e-3, betas=(0.9, 0.999), resolution=32, checkpoint_every=0,
+                                   method="full", rank=4)  # fmt: skip
+    tune_compact(model, lambda rng, gen: _blob_pair(rng), PairSchedule(1.0, 0.995, False), settings, seed=0)
+    assert held_out_loss(model, held) < 0.8 * before
+    assert alpha_err() < 0.8 * alpha_before
+
+
+def test_prior_tune_step_records_and_saves_the_tuned_prior(upstream, tmp_path, tiny_prior_any):
+    from safetensors.torch import load_file
+
+    root, dirs = upstream
+    ctx = _tune_prior(tmp_path, dirs, LORA)
+    info = json.loads((ctx.out_dir / "tune.json").read_text())
+    assert info["status"] == "ok" and info["compact"]["name"] == "tiny-prior"
+    assert np.isfinite([e["loss"] for e in info["loss_log"]]).all()
+    tuned = load_file(str(ctx.out_dir / info["tuned"]))
+    shipped = load_file(str(tiny_prior_any))
+    assert tuned.keys() == shipped.keys()
+    assert any(not torch.equal(tuned[k], shipped[k]) for k in shipped)
+
+
+def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
+    upstream, tmp_path, tiny_prior_any, monkeypatch
+):
+    from go_core.gaussians import Gaussians
+    from go_core.io.checkpoint import Checkpoints
+
+    root, dirs = upstream
+    tuned = _tune_prior(tmp_path / "t", dirs, LORA)
+    full = _repair(tmp_path / "a", dirs, tuned.out_dir, REPAIR)
+    info = json.loads((full.out_dir / "repair.json").read_text())
+    assert info["compact_model"] == "tiny-prior" and info["lora"] == "fine-tuned"
+    no_alpha = _repair(tmp_path / "n", dirs, tuned.out_dir, {**REPAIR, "alpha_weight": 0.0})
+    a = Gaussians.load(full.out_dir / "gaussians.npz")
+    assert not torch.equal(
+        a.opacity_logits, Gaussians.load(no_alpha.out_dir / "gaussians.npz").opacity_logits
+    )
+
+    original = Checkpoints.save
+
+    def save_then_die(*args, **kwargs):
+        original(*args, **kwargs)
+        raise KeyboardInterrupt("simulated kill after the first repair checkpoint")
+
+    monkeypatch.setattr(Checkpoints, "save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        _repair(tmp_path / "b", dirs, tuned.out_dir, REPAIR)
+    monkeypatch.setattr(Checkpoints, "save", original)
+    resumed = _repair(tmp_path / "b", dirs, tuned.out_dir, REPAIR)
+    b = Gaussians.load(resumed.out_dir / "gaussians.npz")
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name

@@ -49,7 +49,10 @@ def test_loo_pairs_and_statistics(done):
     with np.load(ctx.out_dir / "loo_pairs.npz") as data:
         for p in info["pairs"]:
             deg, clean = data[p["degraded"]], data[p["clean"]]
-            assert deg.shape == clean.shape == (64, 64, 3) and deg.dtype == np.uint8
+            assert deg.shape == (64, 64, 4) and clean.shape == (64, 64, 3) and deg.dtype == np.uint8
+            # RGBA: the render on white and its alpha; where the render is empty it is white
+            empty = deg[..., 3] == 0
+            assert empty.any() and (deg[..., :3][empty] >= 254).all()
         # the degraded renders of one view change over phase 2 (they are taken at different iterations)
         assert not np.array_equal(data["degraded_0_0"], data["degraded_0_2"])
     steps = [p["phase2_step"] for p in info["pairs"] if p["view"] == 0]
@@ -138,7 +141,7 @@ def test_runs_on_downscaled_views_keep_their_renders_and_photos_at_full_size(don
     ctx = FakeCtx(tmp_path, "loo")
     loo.run(ctx, dirs, step_params(loo.__name__, {**PARAMS, "train_size": 32}))
     with np.load(ctx.out_dir / "loo_pairs.npz") as data, np.load(full_ctx.out_dir / "loo_pairs.npz") as full:
-        assert data["degraded_0_2"].shape == (64, 64, 3)
+        assert data["degraded_0_2"].shape == (64, 64, 4)  # RGB on white + the render's alpha
         assert np.array_equal(data["clean_0"], full["clean_0"]) and np.array_equal(
             data["mask_0"], full["mask_0"]
         )

@@ -173,3 +173,92 @@ def test_reprojection_through_a_plane_matches_the_other_camera():
     same, valid_same = reproject(view(cams[0])[1], ones, k, cams[0], cams[0], rgb0, ones)
     np.testing.assert_allclose(same[valid_same > 0], rgb0[valid_same > 0], atol=1e-6)
     assert nearest_view(np.stack(cams[1:]), np.stack(cams)).tolist() == [1]
+
+
+def test_reference_views_warp_a_scene_photo_with_its_own_intrinsics():
+    """The plane of the test above, the training photo taken with another focal length and size: the
+    scene-side ``ReferenceViews`` (go_core cameras, never the target view itself) gives the novel view."""
+    from go_core.camera import Camera
+    from go_core.compact.reference import GL_TO_CV, ReferenceViews
+    from go_core.corpus.views import camera_to_world
+
+    def view(c2w, size, f):
+        v, u = np.mgrid[:size, :size] + 0.5
+        dirs = np.stack([(u - size / 2) / f, -(v - size / 2) / f, -np.ones_like(u)], -1) @ c2w[:3, :3].T
+        t = -c2w[0, 3] / dirs[..., 0]
+        p = c2w[:3, 3] + t[..., None] * dirs
+        rgb = np.stack(
+            [0.5 + 0.4 * np.sin(3 * p[..., 1]), 0.5 + 0.4 * np.cos(2 * p[..., 2]), 0.3 + 0 * t], -1
+        )
+        k = np.array([[f, 0, size / 2], [0, f, size / 2], [0, 0, 1.0]])
+        cam = Camera("c", size, size, k, np.linalg.inv(c2w @ GL_TO_CV))
+        return cam, rgb.astype(np.float32), t
+
+    class V:
+        def __init__(self, cam, image):
+            self.camera, self.image, self.mask = cam, image, np.ones(image.shape[:2], np.float32)
+
+    cam0, rgb0, _ = view(camera_to_world(0.0, 0.0, 3.0), 96, 130.0)  # the photo: larger, longer lens
+    cam1, rgb1, depth1 = view(camera_to_world(11.0, 5.5, 3.07), 64, 80.0)
+    refs = ReferenceViews([V(cam0, rgb0), V(cam1, rgb1)])
+    assert refs.nearest(cam1) == 1 and refs.nearest(cam1, exclude=1) == 0
+    warped, valid = refs.warp(cam1, depth1, np.ones_like(depth1), exclude=1)
+    assert valid.mean() > 0.5
+    err = np.abs(warped - rgb1)[valid > 0]
+    assert err.max() < 0.01, err.max()
+
+
+# --- the shipped prior ----------------------------------------------------------------------------------
+
+REFERENCE_OUTPUTS = Path(__file__).resolve().parent / "data" / "repair_prior_outputs.npz"
+MODEL_CARD = Path(__file__).resolve().parents[1] / "docs" / "repair_prior.md"
+
+
+def fixed_input(channels: int, size: int = 64) -> torch.Tensor:
+    """A deterministic render-like input: a shaded disc on white, its alpha, and (8 channels) a shifted copy
+    as the reference view."""
+    yy, xx = torch.meshgrid(torch.arange(size) + 0.5, torch.arange(size) + 0.5, indexing="ij")
+    disc = (((yy - 30) ** 2 + (xx - 34) ** 2) < 20**2).float()
+    shade = torch.stack([0.2 + 0.6 * xx / size, 0.7 - 0.5 * yy / size, 0.4 + 0.2 * torch.sin(xx / 3)])
+    rgb = shade * disc + (1 - disc)
+    x = torch.cat([rgb, disc[None]])
+    if channels == 8:
+        x = torch.cat([x, torch.roll(x, 3, dims=2)])
+    return x[None]
+
+
+def shipped_outputs() -> dict[str, np.ndarray]:
+    """Each shipped prior's output on ``fixed_input``: what REFERENCE_OUTPUTS stores (``python -c "from
+    tests.test_repair_prior import write_reference_outputs as w; w()"`` writes it for a new prior)."""
+    from go_core.compact.prior import SHIPPED, PriorRestorer
+
+    torch.set_num_threads(1)
+    out = {}
+    for name in SHIPPED:
+        model = PriorRestorer.load(name)
+        out[name] = model.restore(fixed_input(model.channels))[0].numpy()
+    return out
+
+
+def write_reference_outputs() -> None:
+    REFERENCE_OUTPUTS.parent.mkdir(exist_ok=True)
+    np.savez_compressed(REFERENCE_OUTPUTS, **shipped_outputs())
+
+
+def test_shipped_priors_match_the_model_card_and_their_stored_outputs():
+    import hashlib
+
+    from go_core.compact.prior import SHIPPED, SHIPPED_DIR
+
+    assert SHIPPED, "no repair prior is shipped"
+    card = MODEL_CARD.read_text()
+    for name, sha in SHIPPED.items():
+        path = SHIPPED_DIR / f"{name}.safetensors"
+        assert hashlib.sha256(path.read_bytes()).hexdigest() == sha
+        assert sha in card and name in card, f"{name}: SHA-256 not in {MODEL_CARD}"
+        assert path.stat().st_size <= 30 * 2**20
+    outputs = shipped_outputs()
+    with np.load(REFERENCE_OUTPUTS) as stored:
+        assert sorted(stored.files) == sorted(outputs)
+        for name, out in outputs.items():
+            np.testing.assert_allclose(out, stored[name], atol=1e-5, rtol=0)

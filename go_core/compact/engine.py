@@ -14,6 +14,11 @@ class CompactRepair:
         self.restorer = restorer.to(device).eval()
         self.device = device
 
+    @property
+    def channels(self) -> int:
+        """3: the restorer takes RGB on white; 4: a repair prior, RGB and alpha (the repair loop's input)."""
+        return int(getattr(self.restorer, "channels", 3))
+
     def restore(self, square: torch.Tensor, rng, generator, settings) -> tuple[torch.Tensor, int, float]:
         """One repaired view for the repair loop: (images, label, w) with a blend strength b drawn from
         ``settings.strength_range`` (its one-pass t: label = 1000 b) and the weight w = b."""
@@ -24,4 +29,5 @@ class CompactRepair:
     def repair_one_pass(self, square: torch.Tensor, strength: float) -> torch.Tensor:
         """render + strength · (restore(render) − render), in [0, 1]."""
         restored = self.restorer.restore(square)
+        square = square[:, : restored.shape[1]]  # a prior's reference channels are input only
         return (square + float(strength) * (restored - square)).clamp(0.0, 1.0)

@@ -10,6 +10,11 @@ Layout (``PriorConfig``): pixel-unshuffle by 2 (the U-Net runs at half resolutio
 them, the mirror decoder with skip concatenation, and pixel-shuffle back to full resolution. H and W must be
 multiples of 2^levels (256 is). Weights are a safetensors file with the config and its format in the metadata
 (``save_prior`` / ``load_prior``); a missing, corrupt or mismatched file is one MissingWeightsError naming it.
+
+``PriorRestorer`` puts a prior behind the compact restorer's interface (``go_core.compact.restorer``): one
+tensor in, one out, but with 4 channels, RGB on white and alpha, so the repair loop and the per-scene tuning
+hand it the render's alpha and get a repaired alpha back. The trained priors shipped with the package are
+listed in ``SHIPPED`` with their SHA-256 (docs/repair_prior.md is their model card).
 """
 
 from __future__ import annotations
@@ -26,6 +31,11 @@ from go_core.errors import MissingWeightsError
 
 FORMAT = "go-pipeline/repair-prior-1"
 ALPHA_EPS = 1e-3
+SHIPPED_DIR = Path(__file__).resolve().parent / "priors"
+SHIPPED: dict[str, str] = {  # name -> SHA-256 of priors/<name>.safetensors (docs/repair_prior.md: model card)
+    "go-repair-prior-1": "4cf3ccf7d787ad788485f36d0e0d60ca5faaefd4f186f386d560ffb2a774be51",  # + reference
+    "go-repair-prior-1-noref": "2060472daeff223e42ff9360cccbf14d3c8a0c3f3a1c8ce4591a5c86ead5d2e2",
+}
 
 
 @dataclass(frozen=True)
@@ -120,3 +130,62 @@ def load_prior(path: Path) -> RepairPrior:
     except (SafetensorError, OSError, ValueError, KeyError, RuntimeError, TypeError) as exc:
         raise MissingWeightsError(f"corrupt repair prior weights ({type(exc).__name__})", path) from None
     return model.eval()
+
+
+def shipped_prior_path(name: str) -> Path:
+    """The checked file of the shipped prior ``name``: MissingWeightsError naming it when it is absent or
+    its SHA-256 is not the pinned one (a corrupt or replaced file)."""
+    import hashlib
+
+    path = SHIPPED_DIR / f"{name}.safetensors"
+    if not path.is_file():
+        raise MissingWeightsError("shipped repair prior missing (reinstall go-pipeline)", path)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if digest != SHIPPED[name]:
+        raise MissingWeightsError(f"repair prior SHA-256 {digest} is not the pinned {SHIPPED[name]}", path)
+    return path
+
+
+class PriorRestorer(nn.Module):
+    """A repair prior behind the compact restorer's interface: [B, C, H, W] in (RGB on white and alpha,
+    C = 4; with the reference view's RGB and alpha appended, C = 8), [B, 4, H, W] out. Any H and W: the
+    input is padded (replicate) to the U-Net's multiple, the output cropped back."""
+
+    scale = 1
+
+    def __init__(self, prior: RepairPrior, name: str = "") -> None:
+        super().__init__()
+        self.channels = prior.config.in_channels  # 4, or 8 with the reference view (RGB + alpha) appended
+        self.prior = prior
+        self.name = name
+        self.multiple = 2**prior.config.levels
+
+    @staticmethod
+    def load(name: str) -> PriorRestorer:
+        """The shipped prior ``name`` (MissingWeightsError when absent, corrupt or not the pinned file)."""
+        return PriorRestorer(load_prior(shipped_prior_path(name)), name)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h, w = x.shape[-2:]
+        m = self.multiple
+        ph, pw = (-h) % m, (-w) % m
+        xp = F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+        rgb, alpha = self.prior(xp)
+        return torch.cat([rgb, alpha], 1)[..., :h, :w]
+
+    def tuned_tensors(self) -> dict[str, torch.Tensor]:
+        """The weights a per-scene tuning changes (all of them), for the tune step's file."""
+        return {k: v.detach().contiguous() for k, v in self.prior.state_dict().items()}
+
+    def load_tuned(self, tensors: dict[str, torch.Tensor]) -> None:
+        self.prior.load_state_dict(tensors, strict=True)
+
+    @torch.no_grad()
+    def restore(self, x: torch.Tensor) -> torch.Tensor:
+        """Inference in eval mode (outputs are in [0, 1] by construction)."""
+        was = self.training
+        self.eval()
+        try:
+            return self(x)
+        finally:
+            self.train(was)

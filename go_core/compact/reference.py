@@ -8,7 +8,8 @@ silhouette, else 0. There is no occlusion test, so a surface the training view d
 colour of whatever hides it.
 
 Cameras are OpenGL camera-to-world matrices (NeRF convention, the corpus's ``*_c2w``), intrinsics
-(fx, fy, cx, cy) in pixels, pixel centres at +0.5.
+(fx, fy, cx, cy) in pixels, pixel centres at +0.5. ``ReferenceViews`` does the same for a scene's training
+views and go_core cameras (the repair loop and the per-scene tuning of a prior with a reference input).
 """
 
 from __future__ import annotations
@@ -16,6 +17,17 @@ from __future__ import annotations
 import numpy as np
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def c2w_opengl(cam) -> np.ndarray:
+    """The camera-to-world matrix in the NeRF (OpenGL) convention of a go_core (OpenCV) camera."""
+    return np.linalg.inv(np.asarray(cam.world_to_cam, np.float64)) @ GL_TO_CV
+
+
+def intrinsics_of(cam) -> np.ndarray:
+    """(fx, fy, cx, cy) of a go_core camera."""
+    k = np.asarray(cam.K, np.float64)
+    return np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]])
 
 
 def nearest_view(novel_c2w: np.ndarray, train_c2w: np.ndarray) -> np.ndarray:
@@ -48,11 +60,15 @@ def reproject(
     train_c2w: np.ndarray,
     train_rgb: np.ndarray,
     train_alpha: np.ndarray,
+    train_intrinsics: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(rgb [H, W, 3] on white, alpha [H, W] in {0, 1}): the training photo (``train_rgb`` on white,
-    ``train_alpha`` its silhouette) seen from the novel camera through ``depth`` where ``coverage`` > 0.5."""
+    ``train_alpha`` its silhouette) seen from the novel camera through ``depth`` where ``coverage`` > 0.5.
+    ``train_intrinsics``: the training camera's, when they differ from the novel camera's."""
     h, w = depth.shape
+    th, tw = train_rgb.shape[:2]
     fx, fy, cx, cy = (float(t) for t in intrinsics)
+    tfx, tfy, tcx, tcy = (float(t) for t in (intrinsics if train_intrinsics is None else train_intrinsics))
     v, u = np.mgrid[:h, :w].astype(np.float64) + 0.5
     z = depth.astype(np.float64)
     cam = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z, np.ones_like(z)], -1)  # OpenCV camera frame
@@ -60,9 +76,43 @@ def reproject(
     other = world @ np.linalg.inv(train_c2w @ GL_TO_CV).T
     zt = other[..., 2]
     ok = (coverage > 0.5) & (z > 0) & (zt > 1e-6)
-    ut = fx * other[..., 0] / np.where(ok, zt, 1.0) + cx
-    vt = fy * other[..., 1] / np.where(ok, zt, 1.0) + cy
-    ok &= (ut >= 0.5) & (ut <= w - 0.5) & (vt >= 0.5) & (vt <= h - 0.5)  # all 4 bilinear neighbours inside
+    ut = tfx * other[..., 0] / np.where(ok, zt, 1.0) + tcx
+    vt = tfy * other[..., 1] / np.where(ok, zt, 1.0) + tcy
+    ok &= (ut >= 0.5) & (ut <= tw - 0.5) & (vt >= 0.5) & (vt <= th - 0.5)  # all 4 bilinear neighbours inside
     rgb = np.where(ok[..., None], _bilinear(train_rgb, ut, vt), 1.0)
     seen = _bilinear(train_alpha[..., None], ut, vt)[..., 0] > 0.5
     return rgb.astype(np.float32), (ok & seen).astype(np.float32)
+
+
+class ReferenceViews:
+    """A scene's training views as reference inputs: ``warp(camera, depth, coverage, exclude)`` is the
+    nearest training view by viewing direction (never ``exclude``: a training view's own photo is the
+    target there) warped into ``camera`` through ``depth``. Views: objects with ``camera``, ``image``
+    [H, W, 3] (straight colour) and ``mask`` [H, W] (tensors or arrays)."""
+
+    def __init__(self, views) -> None:
+        self.rgb, self.alpha, self.c2w, self.intrinsics = [], [], [], []
+        for v in views:
+            image = np.asarray(v.image, np.float32)
+            mask = np.ones(image.shape[:2], np.float32) if v.mask is None else np.asarray(v.mask, np.float32)
+            self.rgb.append(image * mask[..., None] + (1.0 - mask[..., None]))
+            self.alpha.append(mask)
+            self.c2w.append(c2w_opengl(v.camera))
+            self.intrinsics.append(intrinsics_of(v.camera))
+        self.c2w = np.stack(self.c2w)
+
+    def nearest(self, camera, exclude: int | None = None) -> int:
+        """The training view looking most like ``camera`` (``exclude`` never chosen)."""
+        forward = -self.c2w[:, :3, 2]
+        score = forward @ -c2w_opengl(camera)[:3, 2]
+        if exclude is not None and len(score) > 1:
+            score[exclude] = -np.inf
+        return int(np.argmax(score))
+
+    def warp(self, camera, depth: np.ndarray, coverage: np.ndarray, exclude: int | None = None):
+        """(rgb [H, W, 3] on white, alpha [H, W]) float32: the reference input at ``camera``."""
+        j = self.nearest(camera, exclude)
+        return reproject(
+            np.asarray(depth, np.float64), np.asarray(coverage), intrinsics_of(camera), c2w_opengl(camera),
+            self.c2w[j], self.rgb[j], self.alpha[j], self.intrinsics[j],
+        )  # fmt: skip

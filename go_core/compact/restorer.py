@@ -20,6 +20,8 @@ MODES = ("down_up", "up_down")
 
 
 class CompactRestorer(nn.Module):
+    channels = 3  # RGB on white in and out (a repair prior takes and gives alpha too: 4)
+
     def __init__(
         self, net: NcnnNet, scale: int, prepad: int = 0, name: str = "", mode: str = "down_up"
     ) -> None:
@@ -39,6 +41,13 @@ class CompactRestorer(nn.Module):
 
         net, meta = load_compact(name, root)
         return CompactRestorer(net, meta["scale"], meta["prepad"], name, mode)
+
+    def tuned_tensors(self) -> dict[str, torch.Tensor]:
+        """The weights a per-scene tuning changes, in the ncnn layout, for the tune step's file."""
+        return {k: v.contiguous() for k, v in self.net.ncnn_tensors().items()}
+
+    def load_tuned(self, tensors: dict[str, torch.Tensor]) -> None:
+        self.net.load_ncnn_tensors(tensors)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h, w = x.shape[-2:]
@@ -64,3 +73,12 @@ class CompactRestorer(nn.Module):
             return self(x).clamp(0.0, 1.0)
         finally:
             self.train(was)
+
+
+def load_restorer(name: str) -> nn.Module:
+    """The compact repair model ``name``: a shipped repair prior (``go_core.compact.prior.SHIPPED``, RGB +
+    alpha) or a converted pretrained network (RGB). Either has ``channels``, ``scale``, ``restore``,
+    ``tuned_tensors`` and ``load_tuned``; missing or corrupt weights are one MissingWeightsError."""
+    from go_core.compact.prior import SHIPPED, PriorRestorer
+
+    return PriorRestorer.load(name) if name in SHIPPED else CompactRestorer.load(name)

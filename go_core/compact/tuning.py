@@ -44,7 +44,8 @@ class CompactTuneSettings:
 
 
 def pair_loss(model: CompactRestorer, degraded: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
-    """The tuning objective: L1 between the restored degraded image and the clean one."""
+    """The tuning objective: L1 between the restored degraded image and the clean one (over every channel:
+    with a repair prior the alpha too, against the clean view's mask)."""
     return F.l1_loss(model(degraded), clean)
 
 
@@ -121,6 +122,8 @@ def tune_compact(
 ) -> dict:
     """Fine-tune ``model`` in place on pairs from ``draw(rng, generator)``; ``schedule`` is the pair
     schedule whose state is checkpointed (``PairSchedule``). Returns a summary dict."""
+    if settings.method == "lora" and not isinstance(model, CompactRestorer):
+        raise ValueError("tune.compact_method 'lora' adapts a converted network; tune a repair prior 'full'")
     if settings.method == "lora":
         from go_core.compact.lora import add_conv_lora
         from go_core.extras import require_extra
@@ -149,7 +152,7 @@ def tune_compact(
     for step in range(start + 1, settings.steps + 1):
         pair = draw(rng, gen)
         counts[pair.kind] += 1
-        deg, clean = pair_tensors(pair, settings.resolution)
+        deg, clean = pair_tensors(pair, settings.resolution, model.channels)
         loss = pair_loss(model, deg, clean)
         opt.zero_grad(set_to_none=True)
         loss.backward()

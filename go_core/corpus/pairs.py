@@ -18,17 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from go_core.compact.reference import c2w_opengl
 from go_core.io.images import composite, to_uint8
-
-OPENGL_FLIP = np.diag([1.0, -1.0, -1.0])
-
-
-def _c2w_opengl(cam) -> np.ndarray:
-    """The camera-to-world matrix in the NeRF (OpenGL) convention of a go_core (OpenCV) camera."""
-    w2c = np.asarray(cam.world_to_cam, np.float64)
-    c2w = np.linalg.inv(w2c)
-    c2w[:3, :3] = c2w[:3, :3] @ OPENGL_FLIP
-    return c2w
 
 
 def _render(gaussians, cams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -68,8 +59,8 @@ def make_pairs(scene_dir: Path, gaussians) -> dict[str, np.ndarray]:
         "train_rgba": _rgba(scene.train),
         "train_coarse_rgb": train_rgb,
         "train_coarse_alpha": train_alpha,
-        "novel_c2w": np.stack([_c2w_opengl(c) for c in scene.test_cameras]),
-        "train_c2w": np.stack([_c2w_opengl(c) for c in scene.train_cameras]),
+        "novel_c2w": np.stack([c2w_opengl(c) for c in scene.test_cameras]),
+        "train_c2w": np.stack([c2w_opengl(c) for c in scene.train_cameras]),
         "intrinsics": np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]], np.float64),
     }
 

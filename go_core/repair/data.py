@@ -60,6 +60,18 @@ def render_rgb_alpha(
     return render_differentiable(g, cam, background, backend, sh_degree)
 
 
+@torch.no_grad()
+def render_rgb_alpha_depth(
+    g: Gaussians, cam: Camera, backend: str = "auto", sh_degree: int | None = None
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(rgb [H, W, 3] on white, alpha [H, W], expected depth [H, W]) of ``g`` seen by ``cam``."""
+    from go_core.render import render_camera
+
+    kw = {} if sh_degree is None else {"sh_degree": sh_degree}
+    out = render_camera(g, cam, background=torch.ones(3), backend=backend, **kw)
+    return out.rgb[0].clamp(0.0, 1.0), out.alpha[0, ..., 0], out.depth[0, ..., 0]
+
+
 def render_differentiable(
     g: Gaussians, cam: Camera, background: float = 1.0, backend: str = "auto", sh_degree: int | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:

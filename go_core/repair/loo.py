@@ -34,7 +34,7 @@ class LooRun:
     before: Gaussians
     after: Gaussians
     render_steps: list[int]
-    renders: list[np.ndarray]  # uint8 [H, W, 3] on white
+    renders: list[np.ndarray]  # uint8 [H, W, 4]: RGB on white and the alpha of the render
     info: dict
 
 
@@ -114,8 +114,8 @@ def run_one(
     def hook(step, g, out, view, i):
         if step in steps and not (rdir / f"step_{step:07d}.npy").is_file():
             sh = settings.coarse.sh_degree
-            rgb, _ = render_rgb_alpha(g.detach(), left.camera, 1.0, settings.backend, sh)
-            _save_npy(rdir / f"step_{step:07d}.npy", to_uint8(rgb))
+            rgb, alpha = render_rgb_alpha(g.detach(), left.camera, 1.0, settings.backend, sh)
+            _save_npy(rdir / f"step_{step:07d}.npy", to_uint8(torch.cat([rgb, alpha[..., None]], -1)))
         return None
 
     cfg2 = settings.phase2_config()
@@ -140,8 +140,8 @@ def run_one(
     if len(after) != len(before):
         raise AssertionError("phase 2 must keep the Gaussian set fixed")
     final = settings.phase2_iterations + 1
-    rgb, _ = render_rgb_alpha(after, left.camera, 1.0, settings.backend, settings.coarse.sh_degree)
-    _save_npy(rdir / f"step_{final:07d}.npy", to_uint8(rgb))
+    rgb, alpha = render_rgb_alpha(after, left.camera, 1.0, settings.backend, settings.coarse.sh_degree)
+    _save_npy(rdir / f"step_{final:07d}.npy", to_uint8(torch.cat([rgb, alpha[..., None]], -1)))
     after.save(run_dir / "after.npz")
     clean = on_white(left.image, left.mask)
     _save_npy(run_dir / "clean.npy", to_uint8(clean))

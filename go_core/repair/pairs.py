@@ -9,7 +9,7 @@ multiplied by 0.995 every time a noise pair is used. All randomness comes from t
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,16 +28,54 @@ class Pair:
     mask: torch.Tensor  # [H, W] object mask of the clean view (for framing)
     kind: str  # "noise" | "loo"
     view: int
+    degraded_alpha: torch.Tensor | None = None  # [H, W] alpha of the degraded render (a prior's input)
+    reference: tuple[torch.Tensor, torch.Tensor] | None = None  # a prior's reference input: RGB, alpha
 
 
-def pair_tensors(pair: Pair, resolution: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(degraded, clean) [1, 3, r, r] in the clean view's square frame (what either repair model tunes on)."""
+def training_view_references(views: list, coarse: Gaussians, backend: str) -> list:
+    """For each training view k, the reference input a prior gets with k's pairs: the nearest OTHER
+    training view warped into k through the coarse model's expected depth at k ([H, W, 3], [H, W])."""
+    from go_core.compact.reference import ReferenceViews
+    from go_core.repair.data import render_rgb_alpha_depth
+
+    refs = ReferenceViews(views)
+    out = []
+    for k, v in enumerate(views):
+        _, alpha, depth = render_rgb_alpha_depth(coarse, v.camera, backend)
+        rgb, a = refs.warp(v.camera, depth.numpy(), alpha.numpy(), exclude=k)
+        out.append((torch.from_numpy(rgb), torch.from_numpy(a)))
+    return out
+
+
+def with_reference(pair: Pair, references: list) -> Pair:
+    """``pair`` with the reference input of its view (``training_view_references``)."""
+    return replace(pair, reference=references[pair.view])
+
+
+def pair_tensors(pair: Pair, resolution: int, channels: int = 3) -> tuple[torch.Tensor, torch.Tensor]:
+    """(degraded, clean) [1, C, r, r] in the clean view's square frame (what either repair model tunes on).
+    ``channels`` 4 (a repair prior): RGB plus the degraded render's alpha, and the clean view's mask as the
+    target alpha (framed with a 0 background); 8: the pair's reference RGB and alpha appended to degraded."""
     h, w = pair.clean.shape[:2]
     frame = Frame.choose(h, w, pair.mask)
-    return (
-        frame.to_square(hwc_to_bchw(pair.degraded), resolution),
-        frame.to_square(hwc_to_bchw(pair.clean), resolution),
-    )
+    degraded = frame.to_square(hwc_to_bchw(pair.degraded), resolution)
+    clean = frame.to_square(hwc_to_bchw(pair.clean), resolution)
+    if channels == 3:
+        return degraded, clean
+    if pair.degraded_alpha is None:
+        raise ValueError(f"a {pair.kind} pair without the degraded render's alpha cannot tune a repair prior")
+    alphas = torch.stack([pair.degraded_alpha, pair.mask.reshape(h, w)])[:, None].float()
+    a_deg, a_clean = frame.to_square(alphas, resolution, background=0.0)
+    degraded = torch.cat([degraded, a_deg[None]], 1)
+    if channels == 8:
+        if pair.reference is None:
+            raise ValueError(f"a {pair.kind} pair without its reference view cannot tune this repair prior")
+        ref_rgb, ref_alpha = pair.reference
+        degraded = torch.cat(
+            [degraded, frame.to_square(hwc_to_bchw(ref_rgb), resolution),
+             frame.to_square(ref_alpha[None, None].float(), resolution, background=0.0)], 1,
+        )  # fmt: skip
+    return degraded, torch.cat([clean, a_clean[None]], 1)
 
 
 def noise_pair(
@@ -51,8 +89,8 @@ def noise_pair(
 ) -> Pair:
     """The coarse model with 3D noise rendered at reference ``view`` (white background) vs. its photo."""
     noisy = add_noise(coarse, stats, generator, scale)
-    rgb, _ = render_rgb_alpha(noisy, view.camera, 1.0, backend)
-    return Pair(rgb, on_white(view.image, view.mask), view.mask, "noise", index)
+    rgb, alpha = render_rgb_alpha(noisy, view.camera, 1.0, backend)
+    return Pair(rgb, on_white(view.image, view.mask), view.mask, "noise", index, alpha)
 
 
 class LooPairs:
@@ -71,12 +109,14 @@ class LooPairs:
 
     def get(self, i: int) -> Pair:
         p = self.pairs[i]
+        degraded = from_uint8(self.arrays[p["degraded"]])  # RGB, or RGBA (the render's alpha kept too)
         return Pair(
-            from_uint8(self.arrays[p["degraded"]]),
+            degraded[..., :3],
             from_uint8(self.arrays[p["clean"]]),
             from_uint8(self.arrays[p["mask"]]),
             "loo",
             int(p["view"]),
+            degraded[..., 3] if degraded.shape[-1] == 4 else None,
         )
 
 

@@ -16,7 +16,10 @@ With a one-pass repair model (the compact restorer, ``go_core.compact.engine.Com
 noise level: each novel view gets a blend strength b ~ U(strength_range), the repaired image is
 render + b·(restore(render) − render), and b takes w(t)'s place (w = b: the fraction of the image the model
 replaces, as 1 − ᾱ_t is the fraction of signal SDEdit replaces by noise). λ(π), the decay and the refresh
-schedule are unchanged.
+schedule are unchanged. A repair prior (go_core.compact.prior, ``channels`` 4 or 8) also gets the render's
+alpha, and with 8 channels the nearest training view warped through the render's expected depth
+(go_core.compact.reference); its repaired alpha is kept with the view and ``alpha_weight`` · L1(alpha) joins
+the view's image loss (the mask target of issue 34).
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from go_core.diffusion.frame import Frame
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.gaussians import Gaussians
 from go_core.repair.arcs import RepairArcs
-from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha
+from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha_depth
 from go_core.repair.loss import LpipsFn, repair_image_loss
 from go_core.repair.settings import RepairSettings
 from go_core.repair.weights import distance_weight, lrep_decay, neighbour_dmax
@@ -49,6 +52,7 @@ class CachedView:
     w: float
     lam: float
     arc: int
+    alpha: torch.Tensor | None = None  # a repair prior's repaired alpha [H, W] (the mask target), else None
 
 
 def _cam_to_dict(c: Camera) -> dict:
@@ -76,8 +80,10 @@ class RepairCache:
         seed: int,
         directory: Path | None,
         sh_degree: int,
+        references=None,
     ) -> None:
         self.arcs = arcs
+        self.references = references  # ReferenceViews for a prior with a reference input, else None
         self.diffusion = diffusion
         self.settings = settings
         self.seed = int(seed)
@@ -111,6 +117,7 @@ class RepairCache:
                     v["w"],
                     v["lam"],
                     v["arc"],
+                    None if v.get("alpha") is None else v["alpha"].float(),
                 )
                 for v in data
             ]
@@ -118,6 +125,7 @@ class RepairCache:
             self.views = self.make(period, g)
             for v in self.views:  # the stored precision, so a resumed run (which reads the file) is identical
                 v.image, v.render = v.image.half().float(), v.render.half().float()
+                v.alpha = None if v.alpha is None else v.alpha.half().float()
             if path is not None:
                 from go_core.io.atomic import atomic_torch_save
 
@@ -132,6 +140,7 @@ class RepairCache:
                             "w": v.w,
                             "lam": v.lam,
                             "arc": v.arc,
+                            "alpha": None if v.alpha is None else v.alpha.half(),
                         }
                         for v in self.views
                     ],
@@ -145,25 +154,47 @@ class RepairCache:
         rng = numpy_rng(self.seed, "repair_views", period)
         gen = torch_generator(self.seed, "repair_views", period)
         out = []
+        with_alpha = getattr(self.diffusion, "channels", 3) >= 4  # a repair prior: RGB + alpha in and out
         for rv in self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}"):
-            rgb, alpha = render_rgb_alpha(g, rv.camera, 1.0, s.backend, self.sh_degree)
+            rgb, alpha, depth = render_rgb_alpha_depth(g, rv.camera, s.backend, self.sh_degree)
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
-            square = frame.to_square(base, s.resolution).to(self.diffusion.device)
-            images, label, w = self.diffusion.restore(square, rng, gen, s)  # the repair model's restore
-            full = frame.from_square(images.float().cpu(), base)
+            square = frame.to_square(base, s.resolution)
+            if with_alpha:
+                base = torch.cat([base, alpha[None, None]], 1)
+                square = torch.cat([square, frame.to_square(alpha[None, None], s.resolution, 0.0)], 1)
+            if self.references is not None:  # the nearest training view warped through the render's depth
+                ref_rgb, ref_alpha = (
+                    torch.from_numpy(a) for a in self.references.warp(rv.camera, depth, alpha)
+                )
+                square = torch.cat(
+                    [square, frame.to_square(hwc_to_bchw(ref_rgb), s.resolution),
+                     frame.to_square(ref_alpha[None, None], s.resolution, 0.0)], 1,
+                )  # fmt: skip
+            images, label, w = self.diffusion.restore(square.to(self.diffusion.device), rng, gen, s)
+            full = bchw_to_hwc(frame.from_square(images.float().cpu(), base))
             out.append(
                 CachedView(
                     rv.camera,
-                    bchw_to_hwc(full),
+                    full[..., :3].contiguous(),
                     rgb,
                     label,
                     w,
                     distance_weight(rv.camera.center, self.refs, self.d_max),
                     rv.arc,
+                    full[..., 3].contiguous() if with_alpha else None,
                 )
             )
         return out
+
+
+def _references(engine, views: list):
+    """ReferenceViews of the training views when the repair model takes a reference input (8 channels)."""
+    if getattr(engine, "channels", 3) != 8:
+        return None
+    from go_core.compact.reference import ReferenceViews
+
+    return ReferenceViews(views)
 
 
 def _summary(settings: RepairSettings, arcs: RepairArcs, cache: RepairCache, stats) -> dict:
@@ -223,8 +254,10 @@ class _RepairLoss:
         self.cache.ensure((step - 1) // max(s.refresh_every, 1), g.detach())
         pick = numpy_rng(self.seed, "repair_pick", step).integers(len(self.cache.views))
         cv = self.cache.views[int(pick)]
-        rgb, _ = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
+        rgb, alpha = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
         img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, s.lpips)
+        if cv.alpha is not None and s.alpha_weight > 0:  # the prior's repaired alpha as a mask target
+            img = img + s.alpha_weight * (alpha - cv.alpha).abs().mean()
         loss = self.decay(step) * cv.w * cv.lam * img
         if step % 100 == 0:
             self.log.append(
@@ -287,6 +320,7 @@ def repair_gaussians(
         seed,
         None if checkpoint_dir is None else Path(checkpoint_dir) / "refresh",
         sh,
+        _references(diffusion, views),
     )
     extra = _RepairLoss(arcs, cache, diffusion, settings, seed, sh, lpips, log=[])
     config = settings.training_config(sh)

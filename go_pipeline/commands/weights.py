@@ -52,7 +52,8 @@ def _wheel_kind(wheel: Path) -> str:
 
 
 def _entries(cache: Path | None) -> list[tuple[str, Path]]:
-    """(label, path) of every weight file, in the order fetch prints them."""
+    """(label, path) of every weight file, in the order fetch prints them, then the shipped repair priors."""
+    from go_core.compact.prior import SHIPPED, SHIPPED_DIR
     from go_core.compact.weights import MODELS, compact_path
     from go_core.features import weights as matcher_weights
     from go_core.metrics.lpips_weights import NETS, weights_path
@@ -62,6 +63,7 @@ def _entries(cache: Path | None) -> list[tuple[str, Path]]:
     entries += [(f"compact {n}", compact_path(n, cache)) for n in MODELS]
     entries += [(f"matcher-{n}", matcher_weights.weights_path(n, cache)) for n in matcher_weights.MEMBERS]
     entries += [("mask-u2netp", u2netp_path(cache))]
+    entries += [(f"compact {n} (shipped)", SHIPPED_DIR / f"{n}.safetensors") for n in SHIPPED]
     return entries
 
 
@@ -92,7 +94,11 @@ def main(args: argparse.Namespace) -> int:
 def _state(label: str, path: Path) -> str:
     """present, MISSING or (for the SHA-256-pinned u2netp file) CORRUPT, with the command that mends it."""
     if not path.exists():
-        return "MISSING: run `go-pipeline weights fetch`"
+        return (
+            "MISSING: reinstall go-pipeline"
+            if label.endswith("(shipped)")
+            else "MISSING: run `go-pipeline weights fetch`"
+        )
     if label == "mask-u2netp":
         from go_core.scene.salient_weights import U2NETP_SHA256, file_sha256
 
