@@ -6,8 +6,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
   pretrained  ablation "pretrained only, no tuning": --set tune.finetune=false
   no_repair   ablation "no repair": --set repair.mode=no_repair (eval scores the coarse model)
   realesr     the compact restorer realesr-animevideov3-x4, tuned (the default before the repair prior)
-  prior       the repair prior trained on the corpus (issue 34), tuned; prior_pretrained: not tuned;
-              prior_no_alpha: without its alpha as a mask target (repair.alpha_weight=0);
+  prior       the repair prior trained on the corpus (issue 34), tuned, with its alpha as a mask target
+              (repair.alpha_weight=1); prior_pretrained: not tuned; prior_no_alpha: alpha_weight 0;
               prior_no_reference: the prior trained without the reference input (go-repair-prior-1-noref)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
@@ -38,10 +38,10 @@ VARIANTS = {
     "pretrained": {"tune.finetune": False},
     "no_repair": {"repair.mode": "no_repair"},
     "realesr": {"weights.compact_model": "realesr-animevideov3-x4"},  # the restorer before the prior
-    "prior": {"weights.compact_model": PRIOR},
-    "prior_pretrained": {"weights.compact_model": PRIOR, "tune.finetune": False},
+    "prior": {"weights.compact_model": PRIOR, "repair.alpha_weight": 1.0},  # as measured: the alpha target on
+    "prior_pretrained": {"weights.compact_model": PRIOR, "tune.finetune": False, "repair.alpha_weight": 1.0},
     "prior_no_alpha": {"weights.compact_model": PRIOR, "repair.alpha_weight": 0.0},
-    "prior_no_reference": {"weights.compact_model": PRIOR + "-noref"},
+    "prior_no_reference": {"weights.compact_model": PRIOR + "-noref", "repair.alpha_weight": 1.0},
 }
 SHEET_ROWS = ("realesr", "full", "prior")  # contact-sheet rows after truth and coarse, when they ran
 STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "eval")

@@ -480,10 +480,11 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
 
     root, dirs = upstream
     tuned = _tune_prior(tmp_path / "t", dirs, LORA)
-    full = _repair(tmp_path / "a", dirs, tuned.out_dir, REPAIR)
+    params = {**REPAIR, "alpha_weight": 1.0}
+    full = _repair(tmp_path / "a", dirs, tuned.out_dir, params)
     info = json.loads((full.out_dir / "repair.json").read_text())
     assert info["compact_model"] == "tiny-prior" and info["lora"] == "fine-tuned"
-    no_alpha = _repair(tmp_path / "n", dirs, tuned.out_dir, {**REPAIR, "alpha_weight": 0.0})
+    no_alpha = _repair(tmp_path / "n", dirs, tuned.out_dir, REPAIR)  # alpha_weight 0: the default
     a = Gaussians.load(full.out_dir / "gaussians.npz")
     assert not torch.equal(
         a.opacity_logits, Gaussians.load(no_alpha.out_dir / "gaussians.npz").opacity_logits
@@ -497,9 +498,9 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
 
     monkeypatch.setattr(Checkpoints, "save", save_then_die)
     with pytest.raises(KeyboardInterrupt):
-        _repair(tmp_path / "b", dirs, tuned.out_dir, REPAIR)
+        _repair(tmp_path / "b", dirs, tuned.out_dir, params)
     monkeypatch.setattr(Checkpoints, "save", original)
-    resumed = _repair(tmp_path / "b", dirs, tuned.out_dir, REPAIR)
+    resumed = _repair(tmp_path / "b", dirs, tuned.out_dir, params)
     b = Gaussians.load(resumed.out_dir / "gaussians.npz")
     for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
         assert torch.equal(getattr(a, name), getattr(b, name)), name

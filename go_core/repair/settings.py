@@ -59,7 +59,7 @@ class RepairSettings:
     l2: float = setting(1.0, ge=0)
     lpips: float = setting(1.0, ge=0, doc="LPIPS term (off, and said so, without LPIPS weights)")
     alpha_weight: float = setting(
-        1.0, ge=0, doc="repair prior: L1 of the render's alpha to the prior's repaired alpha (0: off)"
+        0.0, ge=0, doc="repair prior: L1 of the render's alpha to its repaired alpha (docs/repair_prior.md)"
     )
     means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
