@@ -74,6 +74,32 @@ def _repair(root: Path, dirs: dict, lora_dir: Path, params: dict) -> FakeCtx:
     return ctx
 
 
+def _repair_killed_then_resumed(root: Path, dirs: dict, tune_dir: Path, params: dict, monkeypatch):
+    """The repair step killed right after its first checkpoint, then run again: (its ctx, saves seen)."""
+    from go_core.io.checkpoint import Checkpoints
+
+    original, calls = Checkpoints.save, []
+
+    def save_then_die(*args, **kwargs):
+        original(*args, **kwargs)
+        calls.append(1)
+        raise KeyboardInterrupt("simulated kill after the first repair checkpoint")
+
+    monkeypatch.setattr(Checkpoints, "save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        _repair(root, dirs, tune_dir, params)
+    monkeypatch.setattr(Checkpoints, "save", original)
+    return _repair(root, dirs, tune_dir, params), calls
+
+
+def _assert_same_gaussians(dir_a: Path, dir_b: Path) -> None:
+    from go_core.gaussians import Gaussians
+
+    a, b = Gaussians.load(dir_a / "gaussians.npz"), Gaussians.load(dir_b / "gaussians.npz")
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+
+
 # --- parity with the original runtime -------------------------------------------------------------------
 
 
@@ -255,8 +281,6 @@ def test_conv_lora_starts_as_the_identity_and_merges_exactly(tiny_cache):
 def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
     upstream, tmp_path, tiny_cache, monkeypatch
 ):
-    from go_core.gaussians import Gaussians
-    from go_core.io.checkpoint import Checkpoints
 
     root, dirs = upstream
     lora_ctx = _tune(tmp_path / "l", dirs, LORA)
@@ -267,24 +291,9 @@ def test_compact_repair_runs_and_a_killed_run_resumes_bit_identical(
         assert 500 <= v["t"] <= 1000 and v["w"] == pytest.approx(v["t"] / 1000, abs=1e-3)
         assert v["lambda"] > 0
 
-    original = Checkpoints.save
-    calls = []
-
-    def save_then_die(*args, **kwargs):
-        original(*args, **kwargs)
-        calls.append(1)
-        raise KeyboardInterrupt("simulated kill after the first repair checkpoint")
-
-    monkeypatch.setattr(Checkpoints, "save", save_then_die)
-    with pytest.raises(KeyboardInterrupt):
-        _repair(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR)
-    monkeypatch.setattr(Checkpoints, "save", original)
-    resumed = _repair(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR)
+    resumed, calls = _repair_killed_then_resumed(tmp_path / "b", dirs, lora_ctx.out_dir, REPAIR, monkeypatch)
     assert calls and resumed.records["resumed_from"] == 5
-    a = Gaussians.load(full.out_dir / "gaussians.npz")
-    b = Gaussians.load(resumed.out_dir / "gaussians.npz")
-    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
-        assert torch.equal(getattr(a, name), getattr(b, name)), name
+    _assert_same_gaussians(full.out_dir, resumed.out_dir)
     assert (full.out_dir / "repair.json").read_bytes() == (resumed.out_dir / "repair.json").read_bytes()
 
 
@@ -476,7 +485,6 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
     upstream, tmp_path, tiny_prior_any, monkeypatch
 ):
     from go_core.gaussians import Gaussians
-    from go_core.io.checkpoint import Checkpoints
 
     root, dirs = upstream
     tuned = _tune_prior(tmp_path / "t", dirs, LORA)
@@ -490,17 +498,6 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
         a.opacity_logits, Gaussians.load(no_alpha.out_dir / "gaussians.npz").opacity_logits
     )
 
-    original = Checkpoints.save
-
-    def save_then_die(*args, **kwargs):
-        original(*args, **kwargs)
-        raise KeyboardInterrupt("simulated kill after the first repair checkpoint")
-
-    monkeypatch.setattr(Checkpoints, "save", save_then_die)
-    with pytest.raises(KeyboardInterrupt):
-        _repair(tmp_path / "b", dirs, tuned.out_dir, params)
-    monkeypatch.setattr(Checkpoints, "save", original)
-    resumed = _repair(tmp_path / "b", dirs, tuned.out_dir, params)
-    b = Gaussians.load(resumed.out_dir / "gaussians.npz")
-    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
-        assert torch.equal(getattr(a, name), getattr(b, name)), name
+    resumed, calls = _repair_killed_then_resumed(tmp_path / "b", dirs, tuned.out_dir, params, monkeypatch)
+    assert calls
+    _assert_same_gaussians(full.out_dir, resumed.out_dir)

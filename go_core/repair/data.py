@@ -92,3 +92,23 @@ def hwc_to_bchw(img: torch.Tensor) -> torch.Tensor:
 
 def bchw_to_hwc(img: torch.Tensor) -> torch.Tensor:
     return img[0].permute(1, 2, 0).contiguous()
+
+
+def framed_input(
+    frame,
+    resolution: int,
+    rgb: torch.Tensor,
+    alpha: torch.Tensor | None = None,
+    reference: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> torch.Tensor:
+    """A repair model's input square [1, 3 | 4 | 8, r, r]: ``rgb`` [H, W, 3] on white, then (a repair prior)
+    its ``alpha`` [H, W] and a ``reference`` view's RGB and alpha. ``frame`` is a go_core.diffusion.frame
+    Frame; RGB outside the image is white, alpha 0 (no object)."""
+    parts = [frame.to_square(hwc_to_bchw(rgb), resolution)]
+    if alpha is not None:
+        parts.append(frame.to_square(alpha[None, None].float(), resolution, background=0.0))
+    if reference is not None:
+        ref_rgb, ref_alpha = reference
+        parts.append(frame.to_square(hwc_to_bchw(ref_rgb), resolution))
+        parts.append(frame.to_square(ref_alpha[None, None].float(), resolution, background=0.0))
+    return torch.cat(parts, 1)

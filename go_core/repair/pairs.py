@@ -17,7 +17,7 @@ import torch
 
 from go_core.diffusion.frame import Frame
 from go_core.gaussians import Gaussians
-from go_core.repair.data import from_uint8, hwc_to_bchw, on_white, render_rgb_alpha
+from go_core.repair.data import framed_input, from_uint8, on_white, render_rgb_alpha
 from go_core.repair.noise import NoiseStats, PairSchedule, add_noise
 
 
@@ -58,24 +58,17 @@ def pair_tensors(pair: Pair, resolution: int, channels: int = 3) -> tuple[torch.
     target alpha (framed with a 0 background); 8: the pair's reference RGB and alpha appended to degraded."""
     h, w = pair.clean.shape[:2]
     frame = Frame.choose(h, w, pair.mask)
-    degraded = frame.to_square(hwc_to_bchw(pair.degraded), resolution)
-    clean = frame.to_square(hwc_to_bchw(pair.clean), resolution)
     if channels == 3:
-        return degraded, clean
+        return framed_input(frame, resolution, pair.degraded), framed_input(frame, resolution, pair.clean)
     if pair.degraded_alpha is None:
         raise ValueError(f"a {pair.kind} pair without the degraded render's alpha cannot tune a repair prior")
-    alphas = torch.stack([pair.degraded_alpha, pair.mask.reshape(h, w)])[:, None].float()
-    a_deg, a_clean = frame.to_square(alphas, resolution, background=0.0)
-    degraded = torch.cat([degraded, a_deg[None]], 1)
-    if channels == 8:
-        if pair.reference is None:
-            raise ValueError(f"a {pair.kind} pair without its reference view cannot tune this repair prior")
-        ref_rgb, ref_alpha = pair.reference
-        degraded = torch.cat(
-            [degraded, frame.to_square(hwc_to_bchw(ref_rgb), resolution),
-             frame.to_square(ref_alpha[None, None].float(), resolution, background=0.0)], 1,
-        )  # fmt: skip
-    return degraded, torch.cat([clean, a_clean[None]], 1)
+    if channels == 8 and pair.reference is None:
+        raise ValueError(f"a {pair.kind} pair without its reference view cannot tune this repair prior")
+    reference = pair.reference if channels == 8 else None
+    return (
+        framed_input(frame, resolution, pair.degraded, pair.degraded_alpha, reference),
+        framed_input(frame, resolution, pair.clean, pair.mask.reshape(h, w)),
+    )
 
 
 def noise_pair(

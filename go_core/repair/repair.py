@@ -36,7 +36,13 @@ from go_core.diffusion.frame import Frame
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.gaussians import Gaussians
 from go_core.repair.arcs import RepairArcs
-from go_core.repair.data import bchw_to_hwc, hwc_to_bchw, render_differentiable, render_rgb_alpha_depth
+from go_core.repair.data import (
+    bchw_to_hwc,
+    framed_input,
+    hwc_to_bchw,
+    render_differentiable,
+    render_rgb_alpha_depth,
+)
 from go_core.repair.loss import LpipsFn, repair_image_loss
 from go_core.repair.settings import RepairSettings
 from go_core.repair.weights import distance_weight, lrep_decay, neighbour_dmax
@@ -159,18 +165,12 @@ class RepairCache:
             rgb, alpha, depth = render_rgb_alpha_depth(g, rv.camera, s.backend, self.sh_degree)
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
-            square = frame.to_square(base, s.resolution)
+            reference = None
+            if self.references is not None:  # the nearest training view warped through the render's depth
+                reference = tuple(torch.from_numpy(a) for a in self.references.warp(rv.camera, depth, alpha))
+            square = framed_input(frame, s.resolution, rgb, alpha if with_alpha else None, reference)
             if with_alpha:
                 base = torch.cat([base, alpha[None, None]], 1)
-                square = torch.cat([square, frame.to_square(alpha[None, None], s.resolution, 0.0)], 1)
-            if self.references is not None:  # the nearest training view warped through the render's depth
-                ref_rgb, ref_alpha = (
-                    torch.from_numpy(a) for a in self.references.warp(rv.camera, depth, alpha)
-                )
-                square = torch.cat(
-                    [square, frame.to_square(hwc_to_bchw(ref_rgb), s.resolution),
-                     frame.to_square(ref_alpha[None, None], s.resolution, 0.0)], 1,
-                )  # fmt: skip
             images, label, w = self.diffusion.restore(square.to(self.diffusion.device), rng, gen, s)
             full = bchw_to_hwc(frame.from_square(images.float().cpu(), base))
             out.append(
