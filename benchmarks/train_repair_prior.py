@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -236,12 +237,23 @@ def _resume(args, model, opt, rng: np.random.Generator) -> dict:
     return {k: meta[k] for k in ("step", "log", "cpu_s", "objects")}
 
 
+def learning_rate(args, step: int) -> float:
+    """The step's learning rate: constant, or cosine from ``--lr`` down to ``--lr-floor`` x ``--lr`` at
+    ``--steps`` (a function of the step alone, so a resumed run follows the same schedule)."""
+    if args.lr_decay == "none":
+        return args.lr
+    floor = args.lr_floor * args.lr
+    return floor + 0.5 * (args.lr - floor) * (1.0 + math.cos(math.pi * min(step, args.steps) / args.steps))
+
+
 def _run_steps(args, model, lpips, opt, rng, data: dict, state: dict) -> bool:
     """Optimise from ``state["step"]`` to ``args.steps``; False when stopped early by ``--budget-min`` (at a
     checkpoint). ``state`` is updated in place (step, loss log, CPU seconds)."""
     t0, wall0, cpu0, running = time.process_time(), time.perf_counter(), state["cpu_s"], []
     for step in range(state["step"] + 1, args.steps + 1):
         b = {k: v.to(args.device) for k, v in draw_batch(data, rng, args.batch, args.crop).items()}
+        for group in opt.param_groups:
+            group["lr"] = learning_rate(args, step)
         terms = loss_terms(model, lpips, b, args)
         opt.zero_grad(set_to_none=True)
         terms["total"].backward()
@@ -313,6 +325,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--crop", type=int, default=128)
     ap.add_argument("--lr", type=float, default=2e-4)
+    ap.add_argument("--lr-decay", default="none", choices=["none", "cosine"], help="learning-rate schedule")
+    ap.add_argument("--lr-floor", type=float, default=0.05, help="cosine: the last step's lr / --lr")
     ap.add_argument("--width", type=int, default=32)
     ap.add_argument("--levels", type=int, default=3)
     ap.add_argument(

@@ -245,6 +245,7 @@ class StepRules:
     skip_if_param: Mapping[str, Mapping[str, str]] = field(
         default_factory=dict
     )  # {"step.param": {value: why}}
+    gate_inputs: tuple[str, ...] = ()  # inputs whose status, not content, is in the key (packaged steps)
 
 
 def step_rules(spec: StepSpec, path: Path | str) -> StepRules:
@@ -255,7 +256,11 @@ def step_rules(spec: StepSpec, path: Path | str) -> StepRules:
     declared = declaration(spec.module)
     if declared is not None:
         return StepRules(
-            declared.version, declared.skip_if_skipped, declared.skip_if_empty, declared.skip_if_param
+            declared.version,
+            declared.skip_if_skipped,
+            declared.skip_if_empty,
+            declared.skip_if_param,
+            declared.gate_inputs,
         )
     source = _module_source(spec.module, path, spec.name)
     version = module_literal(source, "VERSION")

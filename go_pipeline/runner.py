@@ -7,6 +7,7 @@ See docs/runner.md for the key, the work dir layout and the manifest.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import logging
 import os
 import shutil
@@ -243,19 +244,30 @@ def _input_hashes(
     return result
 
 
-def _key_for(plan: _Plan, name: str, inputs: dict[str, dict[str, Any]]) -> str:
+def _gate_status(manifest: dict[str, Any]) -> str:
+    """What a gate input puts in a key: whether its step ran, or skipped and why (not its content)."""
+    record = manifest.get("record") or {}
+    if record.get("status") == "skipped":
+        return json.dumps({"status": "skipped", "reason": record.get("reason")}, sort_keys=True)
+    return json.dumps({"status": "ran"})
+
+
+def _key_for(
+    plan: _Plan, name: str, inputs: dict[str, dict[str, Any]], done: dict[str, dict[str, Any]]
+) -> str:
     from go_pipeline.skipping import foreign_params
 
     params = plan.params[name]
     foreign = foreign_params(plan.rules[name].skip_if_param, plan.params)
     if foreign:  # another step's param decides whether this step skips: part of its key
         params = {**params, "_skip_if_param": foreign}
+    gates = plan.rules[name].gate_inputs  # only their status decides the step's work: it alone is keyed
     return cache_key(
         name,
         plan.rules[name].version,
         params,
         plan.seed,
-        {k: v["content_hash"] for k, v in inputs.items()},
+        {k: _gate_status(done[v["step"]]) if k in gates else v["content_hash"] for k, v in inputs.items()},
         code=plan.code[name].digest,
         function=plan.pipeline.steps[name].function,
         external=_external(plan, name),
@@ -449,7 +461,7 @@ def _run_one(run: _Run, name: str, forced: bool) -> StepResult:
     while True:  # again when a damaged upstream was recomputed: its content (so this key) may differ
         inputs = _input_hashes(spec, run.scene_hash, run.done, plan.scene_dir)
         assert inputs is not None  # topological order: every upstream is in `done`
-        key = _key_for(plan, name, inputs)
+        key = _key_for(plan, name, inputs, run.done)
         run.display.current_step = name
         cached = _reuse(run, name, key, forced)
         if cached is not None:
@@ -816,7 +828,7 @@ def pipeline_status(
         inputs = _input_hashes(spec, scene_hash, done, plan.scene_dir)
         problem = None
         if inputs is not None:
-            key = _key_for(plan, name, inputs)
+            key = _key_for(plan, name, inputs, done)
             manifest, problem = _check_artifact(store.artifact_path(plan.workdir, name, key), spec, verify)
             if manifest is not None:
                 done[name] = manifest

@@ -28,6 +28,9 @@ class StepDeclaration:
     # {"step.param": {value: reason}}: skipped while another step's param has that value (in its cache key)
     skip_if_param: dict[str, dict[str, str]] = field(default_factory=dict)
     version: str | None = None  # forces a rerun without a code change (its code is in the key anyway)
+    # input names the step reads only for skip_if_skipped: their status (ran, or skipped and why) is in the
+    # key, not their content, so another repair model does not rerun the leave-one-out runs
+    gate_inputs: tuple[str, ...] = ()
 
 
 NO_REPAIR_REASON = "no repair (repair.mode no_repair): the coarse model is the result"
@@ -55,10 +58,14 @@ STEPS: dict[str, StepDeclaration] = {
         p.WeightsParams, (art.WEIGHTS_INFO,), skip_if_param={"repair.mode": {"no_repair": NO_REPAIR_REASON}}
     ),
     "go_pipeline.steps.loo": StepDeclaration(
-        p.LooParams, (art.LOO_INFO, art.LOO_PAIRS), skip_if_skipped=("weights",)
+        p.LooParams, (art.LOO_INFO, art.LOO_PAIRS), skip_if_skipped=("weights",), gate_inputs=("weights",)
     ),
     "go_pipeline.steps.noise_pairs": StepDeclaration(
-        p.NoisePairsParams, (art.NOISE_PAIRS_INFO,), (art.NOISE_PAIRS_PREVIEW,), skip_if_skipped=("weights",)
+        p.NoisePairsParams,
+        (art.NOISE_PAIRS_INFO,),
+        (art.NOISE_PAIRS_PREVIEW,),
+        skip_if_skipped=("weights",),
+        gate_inputs=("weights",),
     ),
     "go_pipeline.steps.tune": StepDeclaration(
         p.TuneParams,

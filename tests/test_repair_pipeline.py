@@ -68,6 +68,15 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
     assert metrics["model"] == "repair" and metrics["repair_model"].startswith(f"compact:{DEFAULT_MODEL}")
 
+    # another compact model: the leave-one-out runs and noise pairs do not read the weights (only whether
+    # there are any: a gate input), so they stay cached; the chain from tune on runs with the new model
+    prior = {"weights.compact_model": "go-repair-prior-1-noref", "tune.finetune": False}
+    summary = run_pipeline(EXAMPLE, workdir=tmp_path / "work", profile="test", overrides=prior, quiet=True)
+    steps = {s.name: s for s in summary.steps}
+    assert steps["loo"].status == "cached" and steps["noise_pairs"].status == "cached"
+    assert steps["weights"].status == "ran" and steps["tune"].status == "ran"
+    assert steps["repair"].record["status"] == "ok"
+
     # the "no repair" ablation runs none of the repair chain: the runner skips it from its root, no worker
     summary = run_pipeline(
         EXAMPLE, workdir=tmp_path / "work", profile="test", overrides={"repair.mode": "no_repair"}, quiet=True

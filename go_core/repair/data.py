@@ -60,25 +60,28 @@ def render_rgb_alpha(
     return render_differentiable(g, cam, background, backend, sh_degree)
 
 
+def _render_on(g: Gaussians, cam: Camera, background: float, backend: str, sh_degree: int | None):
+    """The rasterizer's output (go_core.render.RenderOutput) for ``cam`` on a uniform grey ``background``."""
+    from go_core.render import render_camera
+
+    kw = {} if sh_degree is None else {"sh_degree": sh_degree}
+    return render_camera(g, cam, background=torch.full((3,), float(background)), backend=backend, **kw)
+
+
 @torch.no_grad()
 def render_rgb_alpha_depth(
     g: Gaussians, cam: Camera, backend: str = "auto", sh_degree: int | None = None
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(rgb [H, W, 3] on white, alpha [H, W], expected depth [H, W]) of ``g`` seen by ``cam``."""
-    from go_core.render import render_camera
-
-    kw = {} if sh_degree is None else {"sh_degree": sh_degree}
-    out = render_camera(g, cam, background=torch.ones(3), backend=backend, **kw)
+    out = _render_on(g, cam, 1.0, backend, sh_degree)
     return out.rgb[0].clamp(0.0, 1.0), out.alpha[0, ..., 0], out.depth[0, ..., 0]
 
 
 def render_differentiable(
     g: Gaussians, cam: Camera, background: float = 1.0, backend: str = "auto", sh_degree: int | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    from go_core.render import render_camera
-
-    kw = {} if sh_degree is None else {"sh_degree": sh_degree}
-    out = render_camera(g, cam, background=torch.full((3,), float(background)), backend=backend, **kw)
+    """(rgb [H, W, 3] on ``background``, alpha [H, W]) of ``g`` seen by ``cam``, with gradients."""
+    out = _render_on(g, cam, background, backend, sh_degree)
     return out.rgb[0].clamp(0.0, 1.0), out.alpha[0, ..., 0]
 
 

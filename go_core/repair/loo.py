@@ -111,11 +111,13 @@ def run_one(
     steps = set(render_steps(settings))
     rdir = run_dir / "renders"
 
+    def save_render(step: int, g) -> None:  # the left-out view on white with its alpha, RGBA uint8
+        rgb, alpha = render_rgb_alpha(g, left.camera, 1.0, settings.backend, settings.coarse.sh_degree)
+        _save_npy(rdir / f"step_{step:07d}.npy", to_uint8(torch.cat([rgb, alpha[..., None]], -1)))
+
     def hook(step, g, out, view, i):
         if step in steps and not (rdir / f"step_{step:07d}.npy").is_file():
-            sh = settings.coarse.sh_degree
-            rgb, alpha = render_rgb_alpha(g.detach(), left.camera, 1.0, settings.backend, sh)
-            _save_npy(rdir / f"step_{step:07d}.npy", to_uint8(torch.cat([rgb, alpha[..., None]], -1)))
+            save_render(step, g.detach())
         return None
 
     cfg2 = settings.phase2_config()
@@ -139,9 +141,7 @@ def run_one(
         after = before
     if len(after) != len(before):
         raise AssertionError("phase 2 must keep the Gaussian set fixed")
-    final = settings.phase2_iterations + 1
-    rgb, alpha = render_rgb_alpha(after, left.camera, 1.0, settings.backend, settings.coarse.sh_degree)
-    _save_npy(rdir / f"step_{final:07d}.npy", to_uint8(torch.cat([rgb, alpha[..., None]], -1)))
+    save_render(settings.phase2_iterations + 1, after)
     after.save(run_dir / "after.npz")
     clean = on_white(left.image, left.mask)
     _save_npy(run_dir / "clean.npy", to_uint8(clean))
