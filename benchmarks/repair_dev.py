@@ -9,6 +9,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
   prior       the repair prior trained on the corpus (issue 34), tuned, with its alpha as a mask target
               (repair.alpha_weight=1); prior_pretrained: not tuned; prior_no_alpha: alpha_weight 0;
               prior_no_reference: the prior trained without the reference input (go-repair-prior-1-noref)
+  prior2      go-repair-prior-2 (go-repair-prior-1 trained on to 8000 steps), tuned, alpha_weight 0 (the
+              default); prior2_pretrained: not tuned
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
@@ -33,6 +35,7 @@ import numpy as np
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34, docs/repair_prior.md)
+PRIOR2 = "go-repair-prior-2"  # the same prior trained on, to 8000 steps (cosine learning rate)
 VARIANTS = {
     "full": {},
     "pretrained": {"tune.finetune": False},
@@ -42,8 +45,11 @@ VARIANTS = {
     "prior_pretrained": {"weights.compact_model": PRIOR, "tune.finetune": False, "repair.alpha_weight": 1.0},
     "prior_no_alpha": {"weights.compact_model": PRIOR, "repair.alpha_weight": 0.0},
     "prior_no_reference": {"weights.compact_model": PRIOR + "-noref", "repair.alpha_weight": 1.0},
+    "prior2": {"weights.compact_model": PRIOR2},  # tuned, at the default alpha_weight (0)
+    "prior2_pretrained": {"weights.compact_model": PRIOR2, "tune.finetune": False},
 }
-SHEET_ROWS = ("realesr", "full", "prior")  # contact-sheet rows after truth and coarse, when they ran
+# contact-sheet rows after truth and coarse, when they ran
+SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")
 STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "eval")
 
 

@@ -80,22 +80,25 @@ def fusion_views(gaussians, cameras: list[Camera], settings: MeshSettings) -> li
     return [View(*m) for m in maps]
 
 
-def seen_vertices(vertices: np.ndarray, views: list[View], rule: FusionRule) -> np.ndarray:
-    """bool [V]: the vertices that at least one view sees as surface: their pixel has alpha at least
-    ``rule.alpha_threshold`` and a depth within ``rule.truncation`` of theirs (the fusion's own surface
-    test). A wall inside a porous model, reached only by rays that carve through it, is seen by none."""
-    seen = np.zeros(len(vertices), bool)
-    for view in views:
-        uv, z = view.camera.project(vertices)
-        h, w = view.alpha.shape
-        uv = np.where(np.isfinite(uv) & (z > 0)[:, None], uv, -1.0)
-        col, row = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
-        idx = np.nonzero((col >= 0) & (col < w) & (row >= 0) & (row < h))[0]
-        d = view.depth[row[idx], col[idx]]
-        a = view.alpha[row[idx], col[idx]]
-        hit = (a >= rule.alpha_threshold) & np.isfinite(d) & (np.abs(d - z[idx]) <= rule.truncation)
-        seen[idx[hit]] = True
-    return seen
+def seen_vertices(
+    vertices: np.ndarray, views: list[View], rule: FusionRule, chunk: int = 1 << 17
+) -> np.ndarray:
+    """bool [V]: the vertices that at least one view sees as surface, by the fusion's own test
+    (go_core.mesh.tsdf.SurfaceLookup.on_surface: alpha at least ``rule.alpha_threshold`` and a depth within
+    ``rule.truncation`` of theirs). A wall inside a porous model, reached only by rays that carve through it,
+    is seen by none."""
+    import torch
+
+    from go_core.mesh.tsdf import PackedView
+
+    packed = [PackedView(v, rule) for v in views]
+    points = torch.as_tensor(np.asarray(vertices, np.float32).reshape(-1, 3))
+    seen = torch.zeros(len(points), dtype=torch.bool)
+    for start in range(0, len(points), chunk):
+        part = points[start : start + chunk]
+        for view in packed:
+            seen[start : start + chunk] |= view.lookup(part, rule).on_surface()
+    return seen.numpy()
 
 
 def drop_unseen(mesh: TriMesh, views: list[View], rule: FusionRule) -> TriMesh:

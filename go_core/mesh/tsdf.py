@@ -114,7 +114,7 @@ class FusionRule:
             )
 
 
-class _PackedView:
+class PackedView:
     """A view's projection constants and flattened maps as torch tensors."""
 
     def __init__(self, view: View, rule: FusionRule):
@@ -135,24 +135,47 @@ class _PackedView:
             empty = torch.where(self.alpha <= rule.carve_alpha, float("inf"), float("-inf"))
             self.free = torch.where(surface, self.depth, empty)
 
+    def lookup(self, points: torch.Tensor, rule: FusionRule) -> SurfaceLookup:
+        """Where the points [M,3] fall in this view and what its maps say there (the fusion's one surface
+        test: alpha at least ``rule.alpha_threshold`` and a finite depth)."""
+        pc = torch.addmm(self.t, points, self.R.T)
+        x, y, z = pc.unbind(1)
+        inv = 1.0 / z.clamp_min(1e-6)
+        u = torch.floor((self.K[0] * x + self.K[1] * y) * inv + self.K[2])
+        r = torch.floor(self.K[3] * y * inv + self.K[4])
+        valid = (z > 1e-6) & (u >= 0) & (u < self.w) & (r >= 0) & (r < self.h)
+        pix = (r * self.w + u).long().masked_fill_(~valid, 0)
+        d = self.depth[pix]
+        surface = (self.alpha[pix] >= rule.alpha_threshold) & torch.isfinite(d)
+        s = torch.where(surface, (d - z) / rule.truncation, 1.0)
+        return SurfaceLookup(valid, pix, z, surface, s)
 
-def _fuse_chunk(points: torch.Tensor, views: list[_PackedView], rule: FusionRule):
+
+@dataclass(frozen=True)
+class SurfaceLookup:
+    """Per point: ``valid`` (in front of the camera, inside the image), its pixel index ``pix``, its depth
+    ``z``, whether the pixel is ``surface``, and ``s`` = (pixel depth − z) / truncation (1 off surface)."""
+
+    valid: torch.Tensor
+    pix: torch.Tensor
+    z: torch.Tensor
+    surface: torch.Tensor
+    s: torch.Tensor
+
+    def on_surface(self) -> torch.Tensor:
+        """The points within a truncation of the surface the view saw."""
+        return self.valid & self.surface & (self.s.abs() <= 1.0)
+
+
+def _fuse_chunk(points: torch.Tensor, views: list[PackedView], rule: FusionRule):
     """Observation sums and counts, colour sums and counts for the voxel centres ``points`` [M,3]."""
     total = torch.zeros(len(points))
     count = torch.zeros(len(points))
     rgb_sum = torch.zeros(len(points), 3)
     rgb_count = torch.zeros(len(points))
     for v in views:
-        pc = torch.addmm(v.t, points, v.R.T)
-        x, y, z = pc.unbind(1)
-        inv = 1.0 / z.clamp_min(1e-6)
-        u = torch.floor((v.K[0] * x + v.K[1] * y) * inv + v.K[2])
-        r = torch.floor(v.K[3] * y * inv + v.K[4])
-        valid = (z > 1e-6) & (u >= 0) & (u < v.w) & (r >= 0) & (r < v.h)
-        pix = (r * v.w + u).long().masked_fill_(~valid, 0)
-        d = v.depth[pix]
-        surface = (v.alpha[pix] >= rule.alpha_threshold) & torch.isfinite(d)
-        s = torch.where(surface, (d - z) / rule.truncation, 1.0)
+        hit = v.lookup(points, rule)
+        valid, pix, z, surface, s = hit.valid, hit.pix, hit.z, hit.surface, hit.s
         seen = valid & (s >= -1.0) & ((z < v.free[pix]) | (surface & (s <= 0.0)))
         s = s.clamp_max(1.0)
         total += s.masked_fill(~seen, 0.0)
@@ -179,7 +202,7 @@ def fuse_views(
     """The TSDF of ``views`` on ``grid`` (rules in the module docstring), computed for the voxels that the
     boolean [X,Y,Z] ``active`` selects (all when None); the others take ``fill`` [X,Y,Z] (default −1).
     Voxels are processed in chunks of ``chunk`` through every view."""
-    packed = [_PackedView(v, rule) for v in views]
+    packed = [PackedView(v, rule) for v in views]
     ax = [a.float() for a in grid.axes()]
     nx, ny, nz = grid.shape
     n = nx * ny * nz
