@@ -179,7 +179,9 @@ class NoisePairsParams:
 
 @dataclass
 class TuneParams:
-    finetune: bool = setting(True, doc="false: no fine-tuning ablation (pretrained ControlNet only)")
+    finetune: bool = setting(
+        True, doc="false: no fine-tuning, the pretrained repair model (loo and noise_pairs are skipped)"
+    )
     prompt: str = "a photo of xxy5syt00"
     rank: int = setting(64, ge=1, doc="LoRA rank on UNet + ControlNet transformer blocks and CLIP attention")
     alpha: float = setting(64.0, gt=0)

@@ -34,6 +34,7 @@ class StepDeclaration:
 
 
 NO_REPAIR_REASON = "no repair (repair.mode no_repair): the coarse model is the result"
+NO_TUNING_REASON = "no fine-tuning (tune.finetune false): the tuning pairs are not needed"
 DEPTH_SKIP_REASON = "no depth model configured (depth.model_path is empty): the depth loss is off"
 
 STEPS: dict[str, StepDeclaration] = {
@@ -58,13 +59,17 @@ STEPS: dict[str, StepDeclaration] = {
         p.WeightsParams, (art.WEIGHTS_INFO,), skip_if_param={"repair.mode": {"no_repair": NO_REPAIR_REASON}}
     ),
     "go_pipeline.steps.loo": StepDeclaration(
-        p.LooParams, (art.LOO_INFO, art.LOO_PAIRS), skip_if_skipped=("weights",), gate_inputs=("weights",)
+        p.LooParams,
+        (art.LOO_INFO, art.LOO_PAIRS),
+        skip_if_skipped=("weights",),
+        skip_if_param={"tune.finetune": {"False": NO_TUNING_REASON}},  # its pairs only feed the tuning
+        gate_inputs=("weights",),
     ),
     "go_pipeline.steps.noise_pairs": StepDeclaration(
         p.NoisePairsParams,
         (art.NOISE_PAIRS_INFO,),
         (art.NOISE_PAIRS_PREVIEW,),
-        skip_if_skipped=("weights",),
+        skip_if_skipped=("weights", "loo"),
         gate_inputs=("weights",),
     ),
     "go_pipeline.steps.tune": StepDeclaration(

@@ -70,12 +70,21 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
 
     # another compact model: the leave-one-out runs and noise pairs do not read the weights (only whether
     # there are any: a gate input), so they stay cached; the chain from tune on runs with the new model
-    prior = {"weights.compact_model": "go-repair-prior-1-noref", "tune.finetune": False}
+    prior = {"weights.compact_model": "go-repair-prior-1-noref"}
     summary = run_pipeline(EXAMPLE, workdir=tmp_path / "work", profile="test", overrides=prior, quiet=True)
     steps = {s.name: s for s in summary.steps}
     assert steps["loo"].status == "cached" and steps["noise_pairs"].status == "cached"
-    assert steps["weights"].status == "ran" and steps["tune"].status == "ran"
+    assert steps["weights"].status == "ran" and steps["tune"].record["status"] == "ok"
     assert steps["repair"].record["status"] == "ok"
+
+    # no fine-tuning: the tuning pairs are not made (the runner skips loo and noise_pairs), the pretrained
+    # model repairs
+    untuned = {**prior, "tune.finetune": False}
+    summary = run_pipeline(EXAMPLE, workdir=tmp_path / "work", profile="test", overrides=untuned, quiet=True)
+    steps = {s.name: s for s in summary.steps}
+    assert steps["loo"].status == "skipped" and steps["noise_pairs"].status == "skipped"
+    assert "tune.finetune false" in steps["loo"].record["reason"]
+    assert steps["tune"].record["status"] == "pretrained" and steps["repair"].record["status"] == "ok"
 
     # the "no repair" ablation runs none of the repair chain: the runner skips it from its root, no worker
     summary = run_pipeline(

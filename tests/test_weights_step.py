@@ -60,3 +60,21 @@ def test_weights_from_the_environment_are_part_of_the_resolved_params(monkeypatc
     assert pipeline.resolve_params()["weights"]["sd15_path"] == ""
     monkeypatch.setenv("GO_SD15_PATH", "/models/sd15")
     assert pipeline.resolve_params()["weights"]["sd15_path"] == "/models/sd15"
+
+
+def test_loo_and_noise_pairs_skip_without_fine_tuning():
+    """tune.finetune false: the leave-one-out runs only feed the tuning, so the runner skips them (a key of
+    their own: the param is in it), and the noise pairs after them."""
+    from go_pipeline.steps.registry import STEPS
+
+    from go_pipeline.skipping import cascade_skip, foreign_param_skip, foreign_params
+
+    loo = STEPS["go_pipeline.steps.loo"]
+    assert foreign_param_skip(loo.skip_if_param, {"tune": {"finetune": True}}) is None
+    skip = foreign_param_skip(loo.skip_if_param, {"tune": {"finetune": False}})
+    assert skip["status"] == "skipped" and "tune.finetune false" in skip["reason"]
+    assert foreign_params(loo.skip_if_param, {"tune": {"finetune": False}}) == {"tune.finetune": False}
+    noise = STEPS["go_pipeline.steps.noise_pairs"]
+    done = {"weights": {"record": {"status": "ok"}}, "loo": {"record": skip}}
+    inputs = {"weights": "weights", "loo": "loo"}
+    assert cascade_skip(noise.skip_if_skipped, inputs, done)["skip_root"] == "loo"
