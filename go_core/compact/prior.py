@@ -35,7 +35,8 @@ SHIPPED_DIR = Path(__file__).resolve().parent / "priors"
 SHIPPED: dict[str, str] = {  # name -> SHA-256 of priors/<name>.safetensors (docs/repair_prior.md: model card)
     "go-repair-prior-1": "4cf3ccf7d787ad788485f36d0e0d60ca5faaefd4f186f386d560ffb2a774be51",  # + reference
     "go-repair-prior-1-noref": "2060472daeff223e42ff9360cccbf14d3c8a0c3f3a1c8ce4591a5c86ead5d2e2",
-    "go-repair-prior-2": "81018615ed46cfaae3284e0dba2fd8b5833c4a830439c298e46e3acf53c42643",  # prior-1 trained on to 8000 steps
+    # go-repair-prior-1 trained on to 8000 steps
+    "go-repair-prior-2": "81018615ed46cfaae3284e0dba2fd8b5833c4a830439c298e46e3acf53c42643",
 }
 
 
