@@ -10,7 +10,7 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               (repair.alpha_weight=1); prior_pretrained: not tuned; prior_no_alpha: alpha_weight 0;
               prior_no_reference: the prior trained without the reference input (go-repair-prior-1-noref)
   prior2      go-repair-prior-2 (go-repair-prior-1 trained on to 8000 steps), tuned, alpha_weight 0 (the
-              default); prior2_pretrained: not tuned; prior2_tune100: 100 tuning steps instead of 400
+              default); prior2_pretrained: not tuned
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
@@ -47,7 +47,6 @@ VARIANTS = {
     "prior_no_reference": {"weights.compact_model": PRIOR + "-noref", "repair.alpha_weight": 1.0},
     "prior2": {"weights.compact_model": PRIOR2},  # tuned, at the default alpha_weight (0)
     "prior2_pretrained": {"weights.compact_model": PRIOR2, "tune.finetune": False},
-    "prior2_tune100": {"weights.compact_model": PRIOR2, "tune.compact_steps": 100},  # a quarter of the tuning
 }
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")
