@@ -10,7 +10,9 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               (repair.alpha_weight=1); prior_pretrained: not tuned; prior_no_alpha: alpha_weight 0;
               prior_no_reference: the prior trained without the reference input (go-repair-prior-1-noref)
   prior2      go-repair-prior-2 (go-repair-prior-1 trained on to 8000 steps), tuned, alpha_weight 0 (the
-              default); prior2_pretrained: not tuned
+              default); prior2_pretrained: not tuned; prior2_tune60: tuned for 60 steps instead of 400;
+              prior2_pretrained_alpha: not tuned, its alpha as a mask target; noref_pretrained:
+              go-repair-prior-1-noref not tuned; prior3_pretrained: go-repair-prior-3, not tuned
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
@@ -36,6 +38,7 @@ import numpy as np
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34, docs/repair_prior.md)
 PRIOR2 = "go-repair-prior-2"  # the same prior trained on, to 8000 steps (cosine learning rate)
+PRIOR3 = "go-repair-prior-3"  # prior-2 fine-tuned with the object's pixels weighted up (--inside-weight)
 VARIANTS = {
     "full": {},
     "pretrained": {"tune.finetune": False},
@@ -47,6 +50,14 @@ VARIANTS = {
     "prior_no_reference": {"weights.compact_model": PRIOR + "-noref", "repair.alpha_weight": 1.0},
     "prior2": {"weights.compact_model": PRIOR2},  # tuned, at the default alpha_weight (0)
     "prior2_pretrained": {"weights.compact_model": PRIOR2, "tune.finetune": False},
+    "prior2_tune60": {"weights.compact_model": PRIOR2, "tune.compact_steps": 60},  # a short tuning
+    "prior2_pretrained_alpha": {
+        "weights.compact_model": PRIOR2,
+        "tune.finetune": False,
+        "repair.alpha_weight": 1.0,
+    },
+    "noref_pretrained": {"weights.compact_model": PRIOR + "-noref", "tune.finetune": False},
+    "prior3_pretrained": {"weights.compact_model": PRIOR3, "tune.finetune": False},
 }
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")

@@ -2,12 +2,14 @@
 
 Input per pair: the coarse render on white + its alpha + (``--reference``) the nearest training view by
 viewing direction, warped into the novel view through the coarse depth (default) or raw. Target: the true
-render on white and the true alpha. Loss: L1(rgb) + ``--lpips`` · LPIPS(rgb) (the project's LPIPS,
-``--lpips-net`` vgg by default) + ``--alpha-weight`` · L1(alpha). Augmentation: random crops, horizontal
-flips and RGB channel permutations (applied to input, reference and target alike). Deterministic for a seed
-on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch, numpy and this repository on PYTHONPATH
-(no other package); LPIPS weights from ``--lpips-weights`` or the go-pipeline cache. Runs on a GPU with
-``--device cuda``; the weights written are the same kind of file either way. Example (1 CPU thread)::
+render on white and the true alpha. Loss: L1(rgb) (``--inside-weight``: the pixels inside the true
+silhouette weighted up) + ``--lpips`` · LPIPS(rgb) (the project's LPIPS, ``--lpips-net`` vgg by default) +
+``--alpha-weight`` · L1(alpha). ``--init PRIOR`` fine-tunes a trained prior instead of starting afresh.
+Augmentation: random crops, horizontal flips and RGB channel permutations (applied to input, reference and
+target alike). Deterministic for a seed on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch,
+numpy and this repository on PYTHONPATH (no other package); LPIPS weights from ``--lpips-weights`` or the
+go-pipeline cache. Runs on a GPU with ``--device cuda``; the weights written are the same kind of file
+either way. Example (1 CPU thread)::
 
     python benchmarks/train_repair_prior.py --corpus ~/go-corpus --out prior_run \\
         --steps 2000 --batch 4 --crop 128
@@ -112,6 +114,11 @@ def load_split(
 
 
 KEYS = ("inp", "alpha", "ref", "ref_alpha", "tgt", "tgt_alpha")
+# validation figures per object: of the coarse input (_in) and the restored output (_out); PSNR over the
+# image and inside / outside the true silhouette (true alpha > 0.5)
+VAL_KEYS = tuple(
+    f"{k}_{t}" for k in ("psnr", "psnr_inside", "psnr_outside", "lp", "iou") for t in ("in", "out")
+)
 
 
 def draw_batch(data: dict, rng: np.random.Generator, batch: int, crop: int) -> dict[str, torch.Tensor]:
@@ -139,9 +146,23 @@ def model_input(b: dict[str, torch.Tensor], reference: bool) -> torch.Tensor:
     return prior_input(b["inp"], b["alpha"], *((b["ref"], b["ref_alpha"]) if reference != "none" else ()))
 
 
+def rgb_l1(
+    rgb: torch.Tensor, target: torch.Tensor, target_alpha: torch.Tensor, inside: float
+) -> torch.Tensor:
+    """L1 of the RGB; with ``inside`` != 1 a weighted mean whose pixels inside the true silhouette count
+    ``inside`` times (weight 1 + (inside - 1) · true alpha): the object's surface against its background."""
+    if inside == 1.0:
+        return F.l1_loss(rgb, target)
+    weight = (1.0 + (inside - 1.0) * target_alpha).expand_as(rgb)
+    return (weight * (rgb - target).abs()).sum() / weight.sum()
+
+
 def loss_terms(model, lpips, b: dict[str, torch.Tensor], args) -> dict[str, torch.Tensor]:
     rgb, alpha = model(model_input(b, args.reference))
-    terms = {"l1": F.l1_loss(rgb, b["tgt"]), "alpha": F.l1_loss(alpha, b["tgt_alpha"])}
+    terms = {
+        "l1": rgb_l1(rgb, b["tgt"], b["tgt_alpha"], args.inside_weight),
+        "alpha": F.l1_loss(alpha, b["tgt_alpha"]),
+    }
     if lpips is not None and args.lpips > 0:
         terms["lpips"] = lpips(rgb * 2 - 1, b["tgt"] * 2 - 1).mean()
     terms["total"] = (
@@ -152,19 +173,21 @@ def loss_terms(model, lpips, b: dict[str, torch.Tensor], args) -> dict[str, torc
 
 @torch.no_grad()
 def evaluate(model, lpips, data: dict, args, device: str) -> dict:
-    """Validation: PSNR, LPIPS* (x100) and alpha IoU of the coarse input and of the restored output, per
-    object and overall (full-size images, no augmentation)."""
+    """Validation: PSNR (over the image, inside and outside the true silhouette), LPIPS* (x100) and alpha
+    IoU of the coarse input and of the restored output, per object and overall (full-size images, no
+    augmentation)."""
     model.eval()
     rows: dict[str, dict[str, list]] = {}
     for i in range(len(data["names"])):
         b = {k: torch.from_numpy(data[k][i : i + 1]).permute(0, 3, 1, 2).to(device) for k in KEYS}
         rgb, alpha = model(model_input(b, args.reference))
-        row = rows.setdefault(
-            data["names"][i], {k: [] for k in ("psnr_in", "psnr_out", "lp_in", "lp_out", "iou_in", "iou_out")}
-        )
+        row = rows.setdefault(data["names"][i], {k: [] for k in VAL_KEYS})
+        inside = (b["tgt_alpha"] > 0.5).expand_as(b["tgt"])
         for tag, img, a in (("in", b["inp"], b["alpha"]), ("out", rgb, alpha)):
-            mse = F.mse_loss(img, b["tgt"]).clamp_min(1e-12)
-            row[f"psnr_{tag}"].append(float(-10 * torch.log10(mse)))
+            sq = (img - b["tgt"]) ** 2
+            for key, where in (("psnr", None), ("psnr_inside", inside), ("psnr_outside", ~inside)):
+                mse = (sq.mean() if where is None else sq[where].mean()).clamp_min(1e-12)
+                row[f"{key}_{tag}"].append(float(-10 * torch.log10(mse)))
             if lpips is not None:
                 row[f"lp_{tag}"].append(100 * float(lpips(img * 2 - 1, b["tgt"] * 2 - 1).mean()))
             t, p = b["tgt_alpha"] > 0.5, a > 0.5
@@ -293,6 +316,13 @@ def train(args) -> dict:
     rng = numpy_rng(args.seed, "prior_batches")
     args.out.mkdir(parents=True, exist_ok=True)
     state = _resume(args, model, opt, rng)
+    if state["step"] == 0 and args.init is not None:  # fine-tune a trained prior (fresh optimiser and log)
+        from go_core.compact.prior import load_prior
+
+        init = load_prior(args.init)
+        if init.config != model.config:
+            sys.exit(f"error: --init {args.init}: config {init.config} is not this run's {model.config}")
+        model.load_state_dict(init.state_dict())
     start = state["step"]
     data = load_split(args.corpus, "train", args.reference, args.families, state["objects"])
     state["objects"] = sorted(set(data["names"]))
@@ -341,6 +371,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--lpips-weights", type=Path, default=None, help="LPIPS safetensors (default: the cache)")
     ap.add_argument("--no-lpips-eval", action="store_true", help="no LPIPS at all when --lpips is 0")
     ap.add_argument("--alpha-weight", type=float, default=0.5)
+    ap.add_argument("--inside-weight", type=float, default=1.0, help="RGB L1 weight of the object's pixels")
+    ap.add_argument("--init", type=Path, default=None, help="start from this prior's weights (fine-tune)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--log-every", type=int, default=20)
     ap.add_argument("--checkpoint-every", type=int, default=200)

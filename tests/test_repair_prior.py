@@ -140,6 +140,17 @@ def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
     resumed = trainer.train(_args(trainer, corpus, half, 30))
     assert resumed["resumed_from"] == 10
     assert (half / "prior.safetensors").read_bytes() == (tmp_path / "run" / "prior.safetensors").read_bytes()
+    # --init starts from a trained prior: no step leaves its weights as they were, and validation reports
+    # the PSNR inside and outside the true silhouette
+    init_args = _args(trainer, corpus, tmp_path / "init", 0)
+    init_args.init = tmp_path / "run" / "prior.safetensors"
+    again = trainer.train(init_args)
+    trained, copied = load_prior(init_args.init), load_prior(tmp_path / "init" / "prior.safetensors")
+    for key, value in trained.state_dict().items():
+        assert torch.equal(value, copied.state_dict()[key]), key
+    mean = again["validation"]["mean_over_objects"]
+    assert mean["psnr_out"] == val["psnr_out"]
+    assert mean["psnr_inside_out"] is not None and mean["psnr_outside_out"] is not None
 
 
 def test_reprojection_through_a_plane_matches_the_other_camera():
@@ -262,3 +273,16 @@ def test_shipped_priors_match_the_model_card_and_their_stored_outputs():
         assert sorted(stored.files) == sorted(outputs)
         for name, out in outputs.items():
             np.testing.assert_allclose(out, stored[name], atol=1e-5, rtol=0)
+
+
+def test_inside_weighted_l1_against_hand_computed_values():
+    """--inside-weight: pixels inside the true silhouette count w times in the RGB L1 (w = 1: plain L1)."""
+    trainer = benchmark_module("train_repair_prior")
+    target = torch.zeros(1, 3, 1, 2)
+    rgb = torch.tensor([0.2, 0.4]).reshape(1, 1, 1, 2).expand(1, 3, 1, 2).contiguous()
+    alpha = torch.tensor([1.0, 0.0]).reshape(1, 1, 1, 2)  # left pixel inside, right outside
+    assert float(trainer.rgb_l1(rgb, target, alpha, 1.0)) == float(torch.nn.functional.l1_loss(rgb, target))
+    np.testing.assert_allclose(float(trainer.rgb_l1(rgb, target, alpha, 3.0)), (3 * 0.2 + 0.4) / 4, rtol=1e-6)
+    np.testing.assert_allclose(
+        float(trainer.rgb_l1(rgb, target, alpha, 0.5)), (0.5 * 0.2 + 0.4) / 1.5, rtol=1e-6
+    )

@@ -37,6 +37,8 @@ SHIPPED: dict[str, str] = {  # name -> SHA-256 of priors/<name>.safetensors (doc
     "go-repair-prior-1-noref": "2060472daeff223e42ff9360cccbf14d3c8a0c3f3a1c8ce4591a5c86ead5d2e2",
     # go-repair-prior-1 trained on to 8000 steps
     "go-repair-prior-2": "81018615ed46cfaae3284e0dba2fd8b5833c4a830439c298e46e3acf53c42643",
+    # go-repair-prior-2 fine-tuned 1500 steps with the object's pixels weighted 4x in the RGB loss
+    "go-repair-prior-3": "3819272d600582176598492299a20cfa9059702d170111723494fd108c7cc723",
 }
 
 
