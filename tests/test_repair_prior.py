@@ -286,3 +286,19 @@ def test_inside_weighted_l1_against_hand_computed_values():
     np.testing.assert_allclose(
         float(trainer.rgb_l1(rgb, target, alpha, 0.5)), (0.5 * 0.2 + 0.4) / 1.5, rtol=1e-6
     )
+
+
+def test_single_pass_colour_map_recovers_an_affine_map():
+    """benchmarks/prior_single_pass.py: least squares recovers an exact affine map, the ridge pulls it to the
+    identity, and the map acts only where the object is (alpha), never on the white background."""
+    bench = benchmark_module("prior_single_pass")
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.1, 0.9, (2, 16, 16, 3))
+    true = np.array([[0.9, 0.05, 0.0], [0.1, 0.8, 0.05], [0.0, 0.1, 0.95], [0.02, -0.01, 0.03]])
+    y = [np.c_[xi.reshape(-1, 3), np.ones(256)].dot(true).reshape(16, 16, 3) for xi in x]
+    masks = [np.ones((16, 16), bool)] * 2
+    np.testing.assert_allclose(bench.fit_colour_map(list(x), y, masks), true, atol=1e-9)
+    np.testing.assert_allclose(bench.fit_colour_map(list(x), y, masks, ridge=1e6), np.eye(4, 3), atol=1e-5)
+    image = x[0].astype(np.float32)
+    np.testing.assert_array_equal(bench.apply_colour_map(true, image, np.zeros((16, 16))), image)
+    np.testing.assert_allclose(bench.apply_colour_map(true, image, np.ones((16, 16))), y[0], atol=1e-6)
