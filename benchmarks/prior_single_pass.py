@@ -81,37 +81,33 @@ class SinglePass:
             rgb2, a2 = self.refs.warp(cam, depth, alpha, self.refs.nearest(cam, exclude))
             rgb, a = np.where(a[..., None] > 0.5, rgb, rgb2), np.maximum(a, a2)
         if kind == "occluded":
-            hidden = self._hidden(cam, depth, self.refs.nearest(cam, exclude))
+            hidden = self._hidden(cam, depth, alpha, self.refs.nearest(cam, exclude))
             rgb, a = np.where(hidden[..., None], 1.0, rgb), np.where(hidden, 0.0, a)
         return rgb.astype(np.float32), a.astype(np.float32)
 
-    def _hidden(self, cam, depth: np.ndarray, j: int) -> np.ndarray:
-        """Pixels whose surface point lies behind training view ``j``'s coarse depth by more than tol."""
+    def _project(self, cam, depth: np.ndarray, alpha: np.ndarray, j: int):
+        """(ut, vt, zt, ok): the pixels' surface points in training view ``j`` (reference.project)."""
         from go_core.compact import reference as R
 
-        h, w = depth.shape
-        fx, fy, cx, cy = R.intrinsics_of(cam)
-        tfx, tfy, tcx, tcy = self.refs.intrinsics[j]
-        v, u = np.mgrid[:h, :w].astype(np.float64) + 0.5
-        z = depth.astype(np.float64)
-        pts = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z, np.ones_like(z)], -1)
-        other = pts @ (R.c2w_opengl(cam) @ R.GL_TO_CV).T @ np.linalg.inv(self.refs.c2w[j] @ R.GL_TO_CV).T
-        zt = np.maximum(other[..., 2], 1e-6)
-        seen_depth = R._bilinear(self.train_depth[j][..., None], tfx * other[..., 0] / zt + tcx,
-                                 tfy * other[..., 1] / zt + tcy)[..., 0]  # fmt: skip
-        return other[..., 2] > seen_depth + self.tol
+        args = (R.intrinsics_of(cam), R.c2w_opengl(cam), self.refs.c2w[j], self.refs.intrinsics[j])
+        return R.project(depth, alpha, *args, self.refs.alpha[j].shape)
+
+    def _hidden(self, cam, depth: np.ndarray, alpha: np.ndarray, j: int) -> np.ndarray:
+        """Pixels whose surface point lies behind training view ``j``'s coarse depth by more than tol."""
+        from go_core.compact.reference import _bilinear
+
+        ut, vt, zt, ok = self._project(cam, depth, alpha, j)
+        return ok & (zt > _bilinear(self.train_depth[j][..., None], ut, vt)[..., 0] + self.tol)
 
     def inside_hull(self, cam, depth: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         """Covered pixels whose surface point (``depth``) lies in every training mask that frames it."""
-        from go_core.compact import reference as R
+        from go_core.compact.reference import _bilinear
 
         inside = alpha > 0.5
-        for j in range(len(self.refs.rgb)):
-            args = (R.intrinsics_of(cam), R.c2w_opengl(cam), self.refs.c2w[j], self.refs.rgb[j])
-            in_mask = R.reproject(depth, alpha, *args, self.refs.alpha[j], self.refs.intrinsics[j])[1]
-            everywhere = np.ones_like(self.refs.alpha[j])
-            framed = R.reproject(depth, alpha, *args, everywhere, self.refs.intrinsics[j])[1]
-            inside &= (in_mask > 0.5) | (framed < 0.5)
+        for j in range(len(self.refs.alpha)):
+            ut, vt, _, framed = self._project(cam, depth, alpha, j)
+            in_mask = framed & (_bilinear(self.refs.alpha[j][..., None], ut, vt)[..., 0] > 0.5)
+            inside &= in_mask | ~framed
         return inside
 
     def restore(self, cam, rgb, alpha, ref) -> tuple[np.ndarray, np.ndarray]:
@@ -169,6 +165,16 @@ def _truth(view) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(composite(np.asarray(view.image, np.float32), mask, 1.0)), mask > 0.5
 
 
+def _split(image: np.ndarray, truth: np.ndarray, inside: np.ndarray) -> tuple[float, float]:
+    """PSNR (inside, outside) the true silhouette."""
+    return psnr(image, truth, inside), psnr(image, truth, ~inside)
+
+
+def _summary(rows: list[tuple[float, float]]) -> dict:
+    """Mean PSNR inside / outside over the views' ``_split`` rows."""
+    return {"psnr_inside": _mean([r[0] for r in rows]), "psnr_outside": _mean([r[1] for r in rows])}
+
+
 def _mean(values) -> float:
     return round(float(np.mean(values)), 3)
 
@@ -209,12 +215,12 @@ def rows_at_test_views(sp: SinglePass, scene, train_fit) -> dict:
     for v, cam in zip(scene.test, scene.test_cameras, strict=True):
         rgb, alpha, depth = sp.render(cam)
         truth, inside = _truth(v)
-        rows["coarse"].append((psnr(rgb.numpy(), truth, inside), psnr(rgb.numpy(), truth, ~inside)))
+        rows["coarse"].append(_split(rgb.numpy(), truth, inside))
         for kind in kinds:
             out, out_alpha = sp.restore(
                 cam, rgb, alpha, sp.reference(cam, depth.numpy(), alpha.numpy(), kind)
             )
-            rows[kind].append((psnr(out, truth, inside), psnr(out, truth, ~inside)))
+            rows[kind].append(_split(out, truth, inside))
             if kind == "warped":
                 outs.append(out)
                 alphas.append(out_alpha)
@@ -225,13 +231,10 @@ def rows_at_test_views(sp: SinglePass, scene, train_fit) -> dict:
                     alpha.numpy(),
                     sp.inside_hull(cam, depth.numpy(), alpha.numpy()),
                 )
-                rows["hull_gated"].append((psnr(gated, truth, inside), psnr(gated, truth, ~inside)))
+                rows["hull_gated"].append(_split(gated, truth, inside))
         truths.append(truth)
         masks.append(inside)
-    result = {
-        k: {"psnr_inside": _mean([r[0] for r in v]), "psnr_outside": _mean([r[1] for r in v])}
-        for k, v in rows.items()
-    }
+    result = {k: _summary(v) for k, v in rows.items()}
     fits = {"oracle": fit_colour_map(outs, truths, masks)}
     for kind, data in train_fit.items():
         for ridge in RIDGES:
@@ -264,9 +267,8 @@ def tuned_rows_at_test_views(sp: SinglePass, scene, scene_dir: Path, workdir: Pa
             rgb, alpha, depth = sp.render(cam)
             truth, inside = _truth(v)
             out, _ = sp.restore(cam, rgb, alpha, sp.reference(cam, depth.numpy(), alpha.numpy(), "warped"))
-            rows.append((psnr(out, truth, inside), psnr(out, truth, ~inside)))
-        result[f"tuned_{steps}"] = {"psnr_inside": _mean([r[0] for r in rows]),
-                                    "psnr_outside": _mean([r[1] for r in rows])}  # fmt: skip
+            rows.append(_split(out, truth, inside))
+        result[f"tuned_{steps}"] = _summary(rows)
     sp.model.load_tuned(untuned)
     return result
 

@@ -52,6 +52,36 @@ def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
+def project(
+    depth: np.ndarray,
+    coverage: np.ndarray,
+    intrinsics: np.ndarray,
+    novel_c2w: np.ndarray,
+    train_c2w: np.ndarray,
+    train_intrinsics: np.ndarray,
+    train_size: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(ut, vt, zt, ok) [H, W]: where each novel pixel's point at ``depth`` lands in the training camera
+    (continuous pixel coordinates, centres at +0.5), its depth there, and ``ok``: covered (``coverage`` >
+    0.5), in front of both cameras, and with all 4 bilinear neighbours inside the training image
+    (``train_size`` = (height, width))."""
+    h, w = depth.shape
+    th, tw = train_size
+    fx, fy, cx, cy = (float(t) for t in intrinsics)
+    tfx, tfy, tcx, tcy = (float(t) for t in train_intrinsics)
+    v, u = np.mgrid[:h, :w].astype(np.float64) + 0.5
+    z = depth.astype(np.float64)
+    cam = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z, np.ones_like(z)], -1)  # OpenCV camera frame
+    world = cam @ (novel_c2w @ GL_TO_CV).T
+    other = world @ np.linalg.inv(train_c2w @ GL_TO_CV).T
+    zt = other[..., 2]
+    ok = (coverage > 0.5) & (z > 0) & (zt > 1e-6)
+    ut = tfx * other[..., 0] / np.where(ok, zt, 1.0) + tcx
+    vt = tfy * other[..., 1] / np.where(ok, zt, 1.0) + tcy
+    ok &= (ut >= 0.5) & (ut <= tw - 0.5) & (vt >= 0.5) & (vt <= th - 0.5)
+    return ut, vt, zt, ok
+
+
 def reproject(
     depth: np.ndarray,
     coverage: np.ndarray,
@@ -65,20 +95,8 @@ def reproject(
     """(rgb [H, W, 3] on white, alpha [H, W] in {0, 1}): the training photo (``train_rgb`` on white,
     ``train_alpha`` its silhouette) seen from the novel camera through ``depth`` where ``coverage`` > 0.5.
     ``train_intrinsics``: the training camera's, when they differ from the novel camera's."""
-    h, w = depth.shape
-    th, tw = train_rgb.shape[:2]
-    fx, fy, cx, cy = (float(t) for t in intrinsics)
-    tfx, tfy, tcx, tcy = (float(t) for t in (intrinsics if train_intrinsics is None else train_intrinsics))
-    v, u = np.mgrid[:h, :w].astype(np.float64) + 0.5
-    z = depth.astype(np.float64)
-    cam = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z, np.ones_like(z)], -1)  # OpenCV camera frame
-    world = cam @ (novel_c2w @ GL_TO_CV).T
-    other = world @ np.linalg.inv(train_c2w @ GL_TO_CV).T
-    zt = other[..., 2]
-    ok = (coverage > 0.5) & (z > 0) & (zt > 1e-6)
-    ut = tfx * other[..., 0] / np.where(ok, zt, 1.0) + tcx
-    vt = tfy * other[..., 1] / np.where(ok, zt, 1.0) + tcy
-    ok &= (ut >= 0.5) & (ut <= tw - 0.5) & (vt >= 0.5) & (vt <= th - 0.5)  # all 4 bilinear neighbours inside
+    own = intrinsics if train_intrinsics is None else train_intrinsics
+    ut, vt, _, ok = project(depth, coverage, intrinsics, novel_c2w, train_c2w, own, train_rgb.shape[:2])
     rgb = np.where(ok[..., None], _bilinear(train_rgb, ut, vt), 1.0)
     seen = _bilinear(train_alpha[..., None], ut, vt)[..., 0] > 0.5
     return rgb.astype(np.float32), (ok & seen).astype(np.float32)
