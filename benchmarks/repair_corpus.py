@@ -252,6 +252,38 @@ def make_object(entry: dict, assets_root: Path, args) -> dict:
     return info
 
 
+def add_train_depth(out: Path) -> int:
+    """Add ``train_coarse_depth`` to every finished object's ``pairs.npz`` written before it was stored,
+    rendered from the object's ``coarse_gaussians.npz``; the re-rendered training views must equal the
+    stored ``train_coarse_rgb`` / ``_alpha`` to 1/255 (the same model and cameras), else the object is left
+    alone with an error. Returns the number of objects that failed that check."""
+    from go_core.corpus.pairs import train_views
+    from go_core.gaussians import Gaussians
+    from go_core.io.npz import write_npz_deterministic
+
+    bad = 0
+    for info_path in sorted((out / "objects").glob("*/object.json")):
+        folder = info_path.parent
+        with np.load(folder / "pairs.npz") as d:
+            arrays = {k: d[k] for k in d.files}
+        if "train_coarse_depth" in arrays:
+            continue
+        views = train_views(folder / "scene", Gaussians.load(folder / "coarse_gaussians.npz"))
+        diff = max(
+            int(np.abs(views[k].astype(int) - arrays[k].astype(int)).max())
+            for k in ("train_coarse_rgb", "train_coarse_alpha")
+        )
+        if diff > 1:
+            print(f"error: {folder}: training views re-rendered differ by {diff}/255: left alone", flush=True)
+            bad += 1
+            continue
+        write_npz_deterministic(
+            folder / "pairs.npz", {**arrays, "train_coarse_depth": views["train_coarse_depth"]}
+        )
+        print(f"{folder.name}: train_coarse_depth added (re-render within {diff}/255)", flush=True)
+    return bad
+
+
 OBJECT_FIELDS = (
     "split",
     "samples",
@@ -365,6 +397,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     ap.add_argument("--limit", type=int, default=0, help="make at most this many objects in this call")
     ap.add_argument("--only", nargs="*", default=None, help="object names to make (default: all usable)")
+    ap.add_argument(
+        "--add-train-depth",
+        action="store_true",
+        help="only add the training views' coarse depth to objects made before it was stored",
+    )
     return ap.parse_args(argv)
 
 
@@ -376,6 +413,8 @@ def main(argv=None) -> int:
     from go_core.io.atomic import atomic_write_json
 
     args = parse_args(argv)
+    if args.add_train_depth:
+        return 1 if add_train_depth(args.out) else 0
     t_start = time.perf_counter()
     assets_root = args.assets if args.assets is not None else fetch_assets(args.cache)
     args.out.mkdir(parents=True, exist_ok=True)

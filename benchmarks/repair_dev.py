@@ -12,7 +12,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
   prior2      go-repair-prior-2 (go-repair-prior-1 trained on to 8000 steps), tuned, alpha_weight 0 (the
               default); prior2_pretrained: not tuned; prior2_tune60: tuned for 60 steps instead of 400;
               prior2_pretrained_alpha: not tuned, its alpha as a mask target; noref_pretrained:
-              go-repair-prior-1-noref not tuned; prior3_pretrained: go-repair-prior-3, not tuned
+              go-repair-prior-1-noref not tuned; prior3_pretrained: go-repair-prior-3, not tuned;
+              prior4_pretrained: go-repair-prior-4, not tuned
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
@@ -39,6 +40,7 @@ DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34, docs/repair_prior.md)
 PRIOR2 = "go-repair-prior-2"  # the same prior trained on, to 8000 steps (cosine learning rate)
 PRIOR3 = "go-repair-prior-3"  # prior-2 fine-tuned with the object's pixels weighted up (--inside-weight)
+PRIOR4 = "go-repair-prior-4"  # prior-3 fine-tuned with pairs at the training views (--train-view-share)
 VARIANTS = {
     "full": {},
     "pretrained": {"tune.finetune": False},
@@ -58,6 +60,7 @@ VARIANTS = {
     },
     "noref_pretrained": {"weights.compact_model": PRIOR + "-noref", "tune.finetune": False},
     "prior3_pretrained": {"weights.compact_model": PRIOR3, "tune.finetune": False},
+    "prior4_pretrained": {"weights.compact_model": PRIOR4, "tune.finetune": False},
 }
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")

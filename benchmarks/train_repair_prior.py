@@ -4,7 +4,11 @@ Input per pair: the coarse render on white + its alpha + (``--reference``) the n
 viewing direction, warped into the novel view through the coarse depth (default) or raw. Target: the true
 render on white and the true alpha. Loss: L1(rgb) (``--inside-weight``: the pixels inside the true
 silhouette weighted up) + ``--lpips`` · LPIPS(rgb) (the project's LPIPS, ``--lpips-net`` vgg by default) +
-``--alpha-weight`` · L1(alpha). ``--init PRIOR`` fine-tunes a trained prior instead of starting afresh.
+``--alpha-weight`` · L1(alpha). ``--train-view-share S`` draws that share of the samples from the pairs at
+the training views (coarse render -> its photo, reference the nearest other training view, warped through
+the coarse depth there): renders that are already right, which the prior should leave alone
+(``--val-train-views`` scores the held-out objects there too). ``--init PRIOR`` fine-tunes a trained
+prior instead of starting afresh.
 Augmentation: random crops, horizontal flips and RGB channel permutations (applied to input, reference and
 target alike). Deterministic for a seed on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch,
 numpy and this repository on PYTHONPATH (no other package); LPIPS weights from ``--lpips-weights`` or the
@@ -37,25 +41,34 @@ from go_core.compact.prior import PriorConfig, RepairPrior, prior_input, save_pr
 from go_core.compact.reference import nearest_view, reproject
 from go_core.seeding import numpy_rng, seeded_torch_init
 
+KEYS = ("inp", "alpha", "ref", "ref_alpha", "tgt", "tgt_alpha")
+
 
 def _on_white(rgba: np.ndarray) -> np.ndarray:
     a = rgba[..., 3:4].astype(np.float32) / 255.0
     return (rgba[..., :3].astype(np.float32) / 255.0) * a + (1.0 - a)
 
 
-def _references(d, mode: str) -> tuple[np.ndarray, np.ndarray]:
+def _references(d, mode: str, views: str = "novel") -> tuple[np.ndarray, np.ndarray]:
     """The reference input of every pair of one object: the nearest training view, raw or reprojected
-    through the coarse depth (go_core.compact.reference); [N, H, W, 3] on white and [N, H, W, 1]."""
-    near = nearest_view(d["novel_c2w"], d["train_c2w"])
+    through the coarse depth (go_core.compact.reference); [N, H, W, 3] on white and [N, H, W, 1].
+    ``views="train"``: the pairs at the training views, whose reference is the nearest *other* one."""
+    c2w = d[f"{views}_c2w"]
+    if views == "train":
+        score = -c2w[:, :3, 2] @ -d["train_c2w"][:, :3, 2].T
+        np.fill_diagonal(score, -np.inf)
+        near = np.argmax(score, axis=1)
+    else:
+        near = nearest_view(c2w, d["train_c2w"])
     train_rgb = _on_white(d["train_rgba"])
     train_alpha = d["train_rgba"][..., 3].astype(np.float32) / 255.0
     if mode == "nearest":
         return train_rgb[near], train_alpha[near][..., None]
     rgbs, alphas = [], []
     for i, j in enumerate(near):
-        cov = d["novel_coarse_alpha"][i].astype(np.float32) / 255.0
-        args = (d["intrinsics"], d["novel_c2w"][i], d["train_c2w"][j], train_rgb[j], train_alpha[j])
-        rgb, a = reproject(d["novel_coarse_depth"][i], cov, *args)
+        cov = d[f"{views}_coarse_alpha"][i].astype(np.float32) / 255.0
+        args = (d["intrinsics"], c2w[i], d["train_c2w"][j], train_rgb[j], train_alpha[j])
+        rgb, a = reproject(d[f"{views}_coarse_depth"][i], cov, *args)
         rgbs.append(rgb)
         alphas.append(a[..., None])
     return np.stack(rgbs), np.stack(alphas)
@@ -71,49 +84,55 @@ def _wanted(info: dict, split: str, families: list[str] | None) -> bool:
     return info["split"] == split and in_families
 
 
+def _object_pairs(d, reference: str, views: str) -> dict[str, np.ndarray]:
+    """One object's pairs at its ``views`` ("novel": the corpus's novel views; "train": the training
+    views, where the coarse render is nearly right) as float32 arrays [N, H, W, C] in [0, 1]."""
+    truth = d[f"{views}_rgba"]
+    n, h, w = truth.shape[:3]
+    if reference == "none":
+        ref, ref_alpha = np.ones((n, h, w, 3), np.float32), np.zeros((n, h, w, 1), np.float32)
+    else:
+        ref, ref_alpha = _references(d, reference, views)
+    return {
+        "inp": d[f"{views}_coarse_rgb"].astype(np.float32) / 255.0,
+        "alpha": d[f"{views}_coarse_alpha"][..., None].astype(np.float32) / 255.0,
+        "ref": ref,
+        "ref_alpha": ref_alpha,
+        "tgt": _on_white(truth),
+        "tgt_alpha": truth[..., 3:4].astype(np.float32) / 255.0,
+    }
+
+
 def load_split(
     corpus: Path,
     split: str,
     reference: str = "reprojected",
     families: list[str] | None = None,
     only: list[str] | None = None,
+    views: str = "novel",
 ) -> dict:
-    """Every pair of the finished objects of ``split`` (``_wanted``; of ``only`` when given) as float32
-    arrays [N, H, W, C] in [0, 1] (inputs, reference, targets) and the object of each pair."""
-    names, inp, alpha, ref, ref_alpha, tgt, tgt_alpha = [], [], [], [], [], [], []
+    """Every pair at ``views`` (``_object_pairs``) of the finished objects of ``split`` (``_wanted``; of
+    ``only`` when given) as float32 arrays [N, H, W, C] in [0, 1] and the object of each pair."""
+    names, parts = [], {k: [] for k in KEYS}
     for info_path in sorted((corpus / "objects").glob("*/object.json")):
         info = json.loads(info_path.read_text())
-        if not _wanted(info, split, families):
-            continue
-        if only is not None and info["name"] not in only:
+        if not _wanted(info, split, families) or (only is not None and info["name"] not in only):
             continue
         with np.load(info_path.parent / "pairs.npz") as d:
-            r, ra = _references(d, reference) if reference != "none" else (None, None)
-            n = len(d["novel_rgba"])
-            inp.append(d["novel_coarse_rgb"].astype(np.float32) / 255.0)
-            alpha.append(d["novel_coarse_alpha"][..., None].astype(np.float32) / 255.0)
-            ref.append(r if r is not None else np.ones((n, *d["novel_rgba"].shape[1:3], 3), np.float32))
-            ref_alpha.append(
-                ra if ra is not None else np.zeros((n, *d["novel_rgba"].shape[1:3], 1), np.float32)
-            )
-            tgt.append(_on_white(d["novel_rgba"]))
-            tgt_alpha.append(d["novel_rgba"][..., 3:4].astype(np.float32) / 255.0)
-            names += [info["name"]] * n
+            if views == "train" and "train_coarse_depth" not in d.files:
+                sys.exit(
+                    f"error: {info_path.parent / 'pairs.npz'}: no train_coarse_depth (made before it was "
+                    "stored): run benchmarks/repair_corpus.py --out CORPUS --add-train-depth"
+                )
+            pairs = _object_pairs(d, reference, views)
+        for k in KEYS:
+            parts[k].append(pairs[k])
+        names += [info["name"]] * len(pairs["inp"])
     if not names:
         sys.exit(f"error: {corpus}: no finished object of split {split!r} (objects/*/object.json)")
-    cat = np.concatenate
-    return {
-        "names": names,
-        "inp": cat(inp),
-        "alpha": cat(alpha),
-        "ref": cat(ref),
-        "ref_alpha": cat(ref_alpha),
-        "tgt": cat(tgt),
-        "tgt_alpha": cat(tgt_alpha),
-    }
+    return {"names": names, **{k: np.concatenate(v) for k, v in parts.items()}}
 
 
-KEYS = ("inp", "alpha", "ref", "ref_alpha", "tgt", "tgt_alpha")
 # validation figures per object: of the coarse input (_in) and the restored output (_out); PSNR over the
 # image and inside / outside the true silhouette (true alpha > 0.5)
 VAL_KEYS = tuple(
@@ -121,17 +140,26 @@ VAL_KEYS = tuple(
 )
 
 
-def draw_batch(data: dict, rng: np.random.Generator, batch: int, crop: int) -> dict[str, torch.Tensor]:
-    """A random batch: crops, horizontal flips and RGB permutations shared by input, reference and target."""
-    n, h, w = data["inp"].shape[:3]
+def draw_batch(
+    data: dict,
+    rng: np.random.Generator,
+    batch: int,
+    crop: int,
+    extra: dict | None = None,
+    share: float = 0.0,
+) -> dict[str, torch.Tensor]:
+    """A random batch: crops, horizontal flips and RGB permutations shared by input, reference and target.
+    With ``share`` > 0 each sample comes from ``extra`` (the training-view pairs) with that probability."""
+    h, w = data["inp"].shape[1:3]
     out: dict[str, list] = {k: [] for k in KEYS}
     for _ in range(batch):
-        i = int(rng.integers(n))
+        source = extra if share > 0 and rng.random() < share else data
+        i = int(rng.integers(len(source["inp"])))
         y, x = int(rng.integers(h - crop + 1)), int(rng.integers(w - crop + 1))
         flip = bool(rng.random() < 0.5)
         perm = rng.permutation(3)
         for k in KEYS:
-            a = data[k][i, y : y + crop, x : x + crop]
+            a = source[k][i, y : y + crop, x : x + crop]
             if flip:
                 a = a[:, ::-1]
             if a.shape[-1] == 3:
@@ -269,12 +297,14 @@ def learning_rate(args, step: int) -> float:
     return floor + 0.5 * (args.lr - floor) * (1.0 + math.cos(math.pi * min(step, args.steps) / args.steps))
 
 
-def _run_steps(args, model, lpips, opt, rng, data: dict, state: dict) -> bool:
+def _run_steps(args, model, lpips, opt, rng, data: dict, state: dict, train_views: dict | None) -> bool:
     """Optimise from ``state["step"]`` to ``args.steps``; False when stopped early by ``--budget-min`` (at a
     checkpoint). ``state`` is updated in place (step, loss log, CPU seconds)."""
     t0, wall0, cpu0, running = time.process_time(), time.perf_counter(), state["cpu_s"], []
+    share = args.train_view_share
     for step in range(state["step"] + 1, args.steps + 1):
-        b = {k: v.to(args.device) for k, v in draw_batch(data, rng, args.batch, args.crop).items()}
+        batch = draw_batch(data, rng, args.batch, args.crop, train_views, share)
+        b = {k: v.to(args.device) for k, v in batch.items()}
         for group in opt.param_groups:
             group["lr"] = learning_rate(args, step)
         terms = loss_terms(model, lpips, b, args)
@@ -326,13 +356,19 @@ def train(args) -> dict:
     start = state["step"]
     data = load_split(args.corpus, "train", args.reference, args.families, state["objects"])
     state["objects"] = sorted(set(data["names"]))
-    if not _run_steps(args, model, lpips, opt, rng, data, state):
+    train_views = None
+    if args.train_view_share > 0:
+        train_views = load_split(
+            args.corpus, "train", args.reference, args.families, state["objects"], "train"
+        )
+    if not _run_steps(args, model, lpips, opt, rng, data, state, train_views):
         return {"stopped_at": state["step"], "cpu_s_total": round(state["cpu_s"], 1)}
     result = {
         "command": "python benchmarks/train_repair_prior.py " + " ".join(sys.argv[1:]),
         "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
         "loss_log": state["log"],
         "train_pairs": len(data["names"]),
+        "train_view_pairs": len(train_views["names"]) if train_views else 0,
         "train_objects": state["objects"],
         "cpu_s_total": round(state["cpu_s"], 1),
         "resumed_from": start,
@@ -340,6 +376,9 @@ def train(args) -> dict:
     if not args.no_val:
         val = load_split(args.corpus, "held_out", args.reference, args.families)
         result["validation"] = evaluate(model, lpips, val, args, args.device)
+        if args.train_view_share > 0 or args.val_train_views:
+            val = load_split(args.corpus, "held_out", args.reference, args.families, views="train")
+            result["validation_train_views"] = evaluate(model, lpips, val, args, args.device)
     extra = {"steps": args.steps, "train_objects": state["objects"]}
     save_prior(args.out / "prior.safetensors", model.cpu(), extra)
     (args.out / "train_log.json").write_text(json.dumps(result, indent=1))
@@ -372,6 +411,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--no-lpips-eval", action="store_true", help="no LPIPS at all when --lpips is 0")
     ap.add_argument("--alpha-weight", type=float, default=0.5)
     ap.add_argument("--inside-weight", type=float, default=1.0, help="RGB L1 weight of the object's pixels")
+    ap.add_argument(
+        "--train-view-share",
+        type=float,
+        default=0.0,
+        help="share of the samples drawn from the training views (coarse render nearly right: leave it)",
+    )
+    ap.add_argument(
+        "--val-train-views", action="store_true", help="validate at the held-out training views too"
+    )
     ap.add_argument("--init", type=Path, default=None, help="start from this prior's weights (fine-tune)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--log-every", type=int, default=20)

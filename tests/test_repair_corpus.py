@@ -15,6 +15,7 @@ from go_core.corpus.exclusion import Shape, judge
 from go_core.corpus.geometry import Mesh, read_obj, shape_distance
 from go_core.corpus.split import geometry_groups, split_groups
 from go_core.corpus.views import NOVEL_ELEVATION, TRAIN_ELEVATION, draw_views
+from go_core.io.npz import write_npz_deterministic
 from tests._benchmark_module import benchmark_module
 
 BPY_PYTHON = Path(os.environ.get("GO_BPY_PYTHON", Path.home() / ".venvs" / "bpy" / "bin" / "python"))
@@ -171,6 +172,14 @@ def test_corpus_makes_one_object_end_to_end(tmp_path):
         arrays = {k: data[k] for k in data.files}
     assert arrays["novel_coarse_rgb"].shape == (3, 48, 48, 3) and arrays["novel_rgba"].shape == (3, 48, 48, 4)
     assert arrays["train_rgba"].shape == (4, 48, 48, 4) and arrays["novel_coarse_depth"].dtype == np.float16
+    assert arrays["train_coarse_depth"].shape == (4, 48, 48)
+    # a pairs.npz made before the training views' depth was stored gets the same depth added
+    write_npz_deterministic(
+        folder / "pairs.npz", {k: v for k, v in arrays.items() if k != "train_coarse_depth"}
+    )
+    assert corpus.add_train_depth(out) == 0
+    with np.load(folder / "pairs.npz") as data:
+        assert np.array_equal(data["train_coarse_depth"], arrays["train_coarse_depth"])
     alpha = arrays["novel_rgba"][..., 3]
     assert 0.05 < (alpha > 127).mean() < 0.9  # the object is in view and not filling it
     coarse_alpha = arrays["novel_coarse_alpha"] > 127

@@ -302,3 +302,47 @@ def test_single_pass_colour_map_recovers_an_affine_map():
     image = x[0].astype(np.float32)
     np.testing.assert_array_equal(bench.apply_colour_map(true, image, np.zeros((16, 16))), image)
     np.testing.assert_allclose(bench.apply_colour_map(true, image, np.ones((16, 16))), y[0], atol=1e-6)
+
+
+def _rot_y(degrees: float) -> np.ndarray:
+    t = np.radians(degrees)
+    m = np.eye(4)
+    m[[0, 0, 2, 2], [0, 2, 0, 2]] = [np.cos(t), np.sin(t), -np.sin(t), np.cos(t)]
+    return m
+
+
+def test_training_view_pairs_take_the_nearest_other_view_as_reference(tmp_path):
+    """--train-view-share: pairs at the training views (coarse render -> photo) whose reference is the
+    nearest training view by direction other than the view itself; share 0 draws what it drew before."""
+    trainer = benchmark_module("train_repair_prior")
+    corpus = _tiny_corpus(tmp_path / "corpus")
+    pairs = corpus / "objects" / "fam__obj0" / "pairs.npz"
+    with np.load(pairs) as d:
+        arrays = {k: d[k] for k in d.files}
+    with pytest.raises(SystemExit, match="no train_coarse_depth"):
+        trainer.load_split(corpus, "train", "nearest", views="train")
+    size = arrays["train_rgba"].shape[1]
+    photos = np.zeros((4, size, size, 4), np.uint8)
+    photos[..., 3] = 255
+    photos[..., 0] = np.arange(4)[:, None, None] * 60  # view i's photo: red = 60 i on an opaque frame
+    arrays.update(
+        train_rgba=photos,
+        train_c2w=np.stack([_rot_y(a) for a in (0.0, 10.0, 90.0, 180.0)]),
+        train_coarse_rgb=np.full((4, size, size, 3), 7, np.uint8),
+        train_coarse_alpha=np.full((4, size, size), 255, np.uint8),
+        train_coarse_depth=np.ones((4, size, size), np.float16),
+    )
+    write_npz_deterministic(pairs, arrays)
+    views = trainer.load_split(corpus, "train", "nearest", views="train")
+    assert views["names"] == ["fam/obj0"] * 4
+    np.testing.assert_allclose(views["inp"], 7 / 255, rtol=1e-6)
+    np.testing.assert_allclose(views["tgt"][:, 0, 0, 0], np.arange(4) * 60 / 255, rtol=1e-6)
+    nearest_other = [1, 0, 1, 2]  # 0 <-> 10 degrees, 90 -> 10, 180 -> 90
+    np.testing.assert_allclose(views["ref"][:, 0, 0, 0], np.array(nearest_other) * 60 / 255, rtol=1e-6)
+    novel = trainer.load_split(corpus, "train", "nearest")
+    plain = trainer.draw_batch(novel, np.random.default_rng(3), 4, 16)
+    same = trainer.draw_batch(novel, np.random.default_rng(3), 4, 16, views, 0.0)
+    for key in trainer.KEYS:
+        assert torch.equal(plain[key], same[key]), key
+    only_views = trainer.draw_batch(novel, np.random.default_rng(3), 8, 16, views, 1.0)
+    assert torch.all(only_views["inp"] == torch.tensor(7 / 255, dtype=torch.float32))

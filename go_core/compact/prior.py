@@ -39,6 +39,8 @@ SHIPPED: dict[str, str] = {  # name -> SHA-256 of priors/<name>.safetensors (doc
     "go-repair-prior-2": "81018615ed46cfaae3284e0dba2fd8b5833c4a830439c298e46e3acf53c42643",
     # go-repair-prior-2 fine-tuned 1500 steps with the object's pixels weighted 4x in the RGB loss
     "go-repair-prior-3": "3819272d600582176598492299a20cfa9059702d170111723494fd108c7cc723",
+    # go-repair-prior-3 fine-tuned 1500 steps, a quarter of the samples at the training views (identity)
+    "go-repair-prior-4": "873c4018c6316f4967c154761c7edf4ee38ceebfa349df6f510e90975295d1a1",
 }
 
 

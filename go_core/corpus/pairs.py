@@ -6,8 +6,9 @@ and the novel views as ``test``) and returns uint8 / float16 arrays, written by 
 * ``novel_coarse_rgb`` [N, H, W, 3] coarse render on white, ``novel_coarse_alpha`` [N, H, W] its coverage,
   ``novel_coarse_depth`` [N, H, W] float16 expected depth (for reprojecting a reference view later);
 * ``novel_rgba`` [N, H, W, 4] the true render (straight RGB, alpha = true coverage);
-* ``train_rgba`` [4, H, W, 4] the training views, ``train_coarse_rgb`` / ``train_coarse_alpha`` the coarse
-  model at them (how well it fits what it saw);
+* ``train_rgba`` [4, H, W, 4] the training views, ``train_coarse_rgb`` / ``train_coarse_alpha`` /
+  ``train_coarse_depth`` the coarse model at them (how well it fits what it saw; the prior's identity
+  pairs, where the render is already right);
 * ``novel_c2w`` [N, 4, 4], ``train_c2w`` [4, 4, 4] OpenGL camera-to-world matrices, ``intrinsics`` [4]
   (fx, fy, cx, cy), all float64.
 """
@@ -49,7 +50,7 @@ def make_pairs(scene_dir: Path, gaussians) -> dict[str, np.ndarray]:
     scene = load_scene(scene_dir)
     g = gaussians.to(device="cpu")
     novel_rgb, novel_alpha, novel_depth = _render(g, scene.test_cameras)
-    train_rgb, train_alpha, _ = _render(g, scene.train_cameras)
+    train_rgb, train_alpha, train_depth = _render(g, scene.train_cameras)
     k = scene.train_cameras[0].K
     return {
         "novel_coarse_rgb": novel_rgb,
@@ -59,10 +60,20 @@ def make_pairs(scene_dir: Path, gaussians) -> dict[str, np.ndarray]:
         "train_rgba": _rgba(scene.train),
         "train_coarse_rgb": train_rgb,
         "train_coarse_alpha": train_alpha,
+        "train_coarse_depth": train_depth,
         "novel_c2w": np.stack([c2w_opengl(c) for c in scene.test_cameras]),
         "train_c2w": np.stack([c2w_opengl(c) for c in scene.train_cameras]),
         "intrinsics": np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]], np.float64),
     }
+
+
+def train_views(scene_dir: Path, gaussians) -> dict[str, np.ndarray]:
+    """The coarse model rendered at the training views: ``train_coarse_rgb`` / ``_alpha`` / ``_depth`` (to
+    add the depth to a ``pairs.npz`` written before it was stored)."""
+    from go_core.scene.loader import load_scene
+
+    rgb, alpha, depth = _render(gaussians.to(device="cpu"), load_scene(scene_dir).train_cameras)
+    return {"train_coarse_rgb": rgb, "train_coarse_alpha": alpha, "train_coarse_depth": depth}
 
 
 def on_white(rgba: np.ndarray) -> np.ndarray:
