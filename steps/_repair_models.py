@@ -93,6 +93,7 @@ class CompactModel:
             checkpoint_every=params.checkpoint_every,
             method=params.compact_method,
             rank=params.compact_rank,
+            region=params.compact_region,
         )
         if settings.resolution % model.scale:
             raise ValueError(

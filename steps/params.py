@@ -200,6 +200,9 @@ class TuneParams:
     compact_lr: float = setting(0.0001, gt=0, doc="compact: Adam learning rate")
     compact_method: Literal["full", "lora"] = setting("full", doc="compact: full fine-tune or LoRA (peft)")
     compact_rank: int = setting(8, ge=1, doc="compact: LoRA rank (compact_method lora)")
+    compact_region: Literal["all", "inside"] = setting(
+        "all", doc="compact: RGB loss over the whole view, or inside the clean view's mask (a repair prior)"
+    )
     compact_resolution: int = setting(256, ge=1, doc="compact: pair side (a multiple of the model's scale)")
     backend: Backend = "auto"
 

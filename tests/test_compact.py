@@ -501,3 +501,23 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
     resumed, calls = _repair_killed_then_resumed(tmp_path / "b", dirs, tuned.out_dir, params, monkeypatch)
     assert calls
     _assert_same_gaussians(full.out_dir, resumed.out_dir)
+
+
+def test_inside_region_loss_against_hand_computed_values():
+    """tune.compact_region inside: the RGB L1 only where the clean mask is (weighted by it), the alpha L1
+    everywhere, in the proportions of the whole-view loss; refused for a 3-channel restorer."""
+    from go_core.compact.tuning import pair_loss
+
+    clean = torch.zeros(1, 4, 1, 2)
+    clean[:, 3, 0, 0] = 1.0  # left pixel inside, right outside
+    restored = torch.zeros(1, 4, 1, 2)
+    restored[:, :3, 0, 0] = 0.2  # RGB error 0.2 inside ...
+    restored[:, :3, 0, 1] = 0.6  # ... and 0.6 outside
+    restored[:, 3, 0, 0] = 0.5  # alpha error 0.5 inside, 0 outside
+    model = lambda x: x  # noqa: E731  (the "restorer" returns its input)
+    whole = float(pair_loss(model, restored, clean))
+    np.testing.assert_allclose(whole, (3 * (0.2 + 0.6) + 0.5) / 8, rtol=1e-6)
+    inside = float(pair_loss(model, restored, clean, "inside"))
+    np.testing.assert_allclose(inside, (3 * 0.2 + (0.5 + 0.0) / 2) / 4, rtol=1e-6)
+    with pytest.raises(ValueError, match="compact_region"):
+        pair_loss(model, restored[:, :3], clean[:, :3], "inside")

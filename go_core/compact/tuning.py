@@ -38,15 +38,27 @@ class CompactTuneSettings:
     method: str  # "full": every weight; "lora": rank-``rank`` adapters on the convolutions (peft)
     rank: int
     log_every: int = 10
+    region: str = "all"  # "inside": the RGB loss only inside the clean view's mask (a repair prior's alpha)
 
     def fingerprint(self, extra: str = "") -> str:
         return fingerprint_of({"s": asdict(self), "x": extra})
 
 
-def pair_loss(model: CompactRestorer, degraded: torch.Tensor, clean: torch.Tensor) -> torch.Tensor:
+def pair_loss(
+    model: CompactRestorer, degraded: torch.Tensor, clean: torch.Tensor, region: str = "all"
+) -> torch.Tensor:
     """The tuning objective: L1 between the restored degraded image and the clean one (over every channel:
-    with a repair prior the alpha too, against the clean view's mask)."""
-    return F.l1_loss(model(degraded), clean)
+    with a repair prior the alpha too, against the clean view's mask). ``region="inside"`` (a repair prior
+    only): the RGB term only where the clean mask is (weighted by it), the alpha term everywhere, so that the
+    scene's views do not retrain what the prior does to the background."""
+    restored = model(degraded)
+    if region == "all":
+        return F.l1_loss(restored, clean)
+    if region != "inside" or clean.shape[1] != 4:
+        raise ValueError(f"tune.compact_region {region!r}: 'all', or 'inside' with a repair prior's mask")
+    mask = clean[:, 3:4]
+    rgb = ((restored[:, :3] - clean[:, :3]).abs() * mask).sum() / (3.0 * mask.sum()).clamp_min(1.0)
+    return (3.0 * rgb + F.l1_loss(restored[:, 3:4], mask)) / 4.0
 
 
 @torch.no_grad()
@@ -153,7 +165,7 @@ def tune_compact(
         pair = draw(rng, gen)
         counts[pair.kind] += 1
         deg, clean = pair_tensors(pair, settings.resolution, model.channels)
-        loss = pair_loss(model, deg, clean)
+        loss = pair_loss(model, deg, clean, settings.region)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
