@@ -54,12 +54,7 @@ def _references(d, mode: str, views: str = "novel") -> tuple[np.ndarray, np.ndar
     through the coarse depth (go_core.compact.reference); [N, H, W, 3] on white and [N, H, W, 1].
     ``views="train"``: the pairs at the training views, whose reference is the nearest *other* one."""
     c2w = d[f"{views}_c2w"]
-    if views == "train":
-        score = -c2w[:, :3, 2] @ -d["train_c2w"][:, :3, 2].T
-        np.fill_diagonal(score, -np.inf)
-        near = np.argmax(score, axis=1)
-    else:
-        near = nearest_view(c2w, d["train_c2w"])
+    near = nearest_view(c2w, d["train_c2w"], np.arange(len(c2w)) if views == "train" else None)
     train_rgb = _on_white(d["train_rgba"])
     train_alpha = d["train_rgba"][..., 3].astype(np.float32) / 255.0
     if mode == "nearest":

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from go_core.errors import CollapsedModelError
-from go_core.mesh.extract import clip_to_hull, drop_unseen, seen_vertices
+from go_core.mesh.extract import clip_to_hull, drop_unseen, seen_counts, seen_vertices
 from go_core.mesh.files import read_ply, write_glb, write_ply
 from go_core.mesh.hull_mesh import hull_mesh
 from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes
@@ -85,6 +85,32 @@ def test_drop_unseen_keeps_the_seen_shell_and_refuses_a_mesh_nobody_sees():
     empty = [View(c, np.full((c.height, c.width), np.nan), np.zeros((c.height, c.width))) for c in cams]
     with pytest.raises(CollapsedModelError, match="see-through"):
         drop_unseen(hollow, empty, rule)
+
+
+def test_a_wall_one_view_sees_down_a_tunnel_goes_at_two_views():
+    """The hollow ball of the test above, but the first view looks down a tunnel onto the inner wall (its
+    depth is the inner sphere's): that wall is seen by exactly one view, so ``min_views=1`` counts part of
+    it as seen and ``min_views=2`` (the mesh step's default) none of it, while every outer vertex is seen
+    by at least two views and the outer sphere stays whole."""
+    cams = _cameras()
+    inner = 0.5 * RADIUS
+    views = [View(cams[0], *sphere_depth(cams[0], inner))]
+    views += [View(c, *sphere_depth(c, RADIUS)) for c in cams[1:]]
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 48)
+    rule = FusionRule(3.0 * grid.voxel, 0.5, 0.05, 0.0)
+    axes = [grid.origin[i] + grid.voxel * np.arange(grid.shape[i]) for i in range(3)]
+    r = np.linalg.norm(np.stack(np.meshgrid(*axes, indexing="ij")), axis=0)
+    hollow = marching_cubes(np.maximum(r - RADIUS, inner - r), grid.origin, grid.voxel)
+    radii = np.linalg.norm(hollow.vertices, axis=1)
+    counts = seen_counts(hollow.vertices, views, rule)
+    assert counts[radii < 0.6 * RADIUS].max() == 1 and counts[radii > 0.9 * RADIUS].min() >= 2
+    inside = radii < 0.6 * RADIUS
+    seen_once = seen_vertices(hollow.vertices, views, rule, min_views=1)
+    assert seen_once[inside].mean() > 0.3  # seen down the tunnel
+    assert not seen_vertices(hollow.vertices, views, rule, min_views=2)[inside].any()
+    two = drop_unseen(hollow, views, rule, min_views=2)
+    assert np.linalg.norm(two.vertices, axis=1).min() > 0.9 * RADIUS
+    assert len(two.faces) == np.count_nonzero(radii[hollow.faces].min(axis=1) > 0.75 * RADIUS)
 
 
 def test_tsdf_recovers_a_cube():

@@ -184,6 +184,8 @@ def test_reprojection_through_a_plane_matches_the_other_camera():
     same, valid_same = reproject(view(cams[0])[1], ones, k, cams[0], cams[0], rgb0, ones)
     np.testing.assert_allclose(same[valid_same > 0], rgb0[valid_same > 0], atol=1e-6)
     assert nearest_view(np.stack(cams[1:]), np.stack(cams)).tolist() == [1]
+    assert nearest_view(np.stack(cams[1:]), np.stack(cams), np.array([1])).tolist() == [0]  # never itself
+    assert nearest_view(np.stack(cams[:1]), np.stack(cams[:1]), np.array([0])).tolist() == [0]  # the only one
 
 
 def test_reference_views_warp_a_scene_photo_with_its_own_intrinsics():

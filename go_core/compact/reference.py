@@ -30,11 +30,16 @@ def intrinsics_of(cam) -> np.ndarray:
     return np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]])
 
 
-def nearest_view(novel_c2w: np.ndarray, train_c2w: np.ndarray) -> np.ndarray:
-    """For each novel camera [N, 4, 4], the index of the training camera [T, 4, 4] looking most alike."""
-    fn = -novel_c2w[:, :3, 2]
-    ft = -train_c2w[:, :3, 2]
-    return np.argmax(fn @ ft.T, axis=1)
+def nearest_view(
+    novel_c2w: np.ndarray, train_c2w: np.ndarray, exclude: np.ndarray | None = None
+) -> np.ndarray:
+    """For each novel camera [N, 4, 4], the index of the training camera [T, 4, 4] looking most alike;
+    ``exclude`` [N] (optional) names, per novel camera, a training view never chosen for it (a training
+    view's own photo is the target there), unless it is the only one."""
+    score = -novel_c2w[:, :3, 2] @ -train_c2w[:, :3, 2].T
+    if exclude is not None and train_c2w.shape[0] > 1:
+        score[np.arange(len(score)), np.asarray(exclude)] = -np.inf
+    return np.argmax(score, axis=1)
 
 
 def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -121,11 +126,8 @@ class ReferenceViews:
 
     def nearest(self, camera, exclude: int | None = None) -> int:
         """The training view looking most like ``camera`` (``exclude`` never chosen)."""
-        forward = -self.c2w[:, :3, 2]
-        score = forward @ -c2w_opengl(camera)[:3, 2]
-        if exclude is not None and len(score) > 1:
-            score[exclude] = -np.inf
-        return int(np.argmax(score))
+        skip = None if exclude is None else np.array([exclude])
+        return int(nearest_view(c2w_opengl(camera)[None], self.c2w, skip)[0])
 
     def warp(self, camera, depth: np.ndarray, coverage: np.ndarray, exclude: int | None = None):
         """(rgb [H, W, 3] on white, alpha [H, W]) float32: the reference input at ``camera``."""

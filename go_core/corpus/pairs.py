@@ -23,20 +23,24 @@ from go_core.compact.reference import c2w_opengl
 from go_core.io.images import composite, to_uint8
 
 
-def _render(gaussians, cams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def coarse_at(gaussians, cams, prefix: str) -> dict[str, np.ndarray]:
+    """The coarse model rendered on white at ``cams``: ``{prefix}_coarse_rgb`` uint8 [N, H, W, 3],
+    ``_alpha`` uint8 [N, H, W] and ``_depth`` (expected depth) float16 [N, H, W]."""
     import torch
 
     from go_core.render import render_camera
 
     rgbs, alphas, depths = [], [], []
     white = torch.ones(3)
+    g = gaussians.to(device="cpu")
     with torch.no_grad():
         for cam in cams:
-            out = render_camera(gaussians, cam, background=white)
+            out = render_camera(g, cam, background=white)
             rgbs.append(to_uint8(out.rgb[0].clamp(0, 1).numpy()))
             alphas.append(to_uint8(out.alpha[0, ..., 0].clamp(0, 1).numpy()))
             depths.append(out.depth[0, ..., 0].numpy().astype(np.float16))
-    return np.stack(rgbs), np.stack(alphas), np.stack(depths)
+    names = (f"{prefix}_coarse_rgb", f"{prefix}_coarse_alpha", f"{prefix}_coarse_depth")
+    return dict(zip(names, (np.stack(rgbs), np.stack(alphas), np.stack(depths)), strict=True))
 
 
 def _rgba(views) -> np.ndarray:
@@ -48,19 +52,12 @@ def make_pairs(scene_dir: Path, gaussians) -> dict[str, np.ndarray]:
     from go_core.scene.loader import load_scene
 
     scene = load_scene(scene_dir)
-    g = gaussians.to(device="cpu")
-    novel_rgb, novel_alpha, novel_depth = _render(g, scene.test_cameras)
-    train_rgb, train_alpha, train_depth = _render(g, scene.train_cameras)
     k = scene.train_cameras[0].K
     return {
-        "novel_coarse_rgb": novel_rgb,
-        "novel_coarse_alpha": novel_alpha,
-        "novel_coarse_depth": novel_depth,
+        **coarse_at(gaussians, scene.test_cameras, "novel"),
         "novel_rgba": _rgba(scene.test),
         "train_rgba": _rgba(scene.train),
-        "train_coarse_rgb": train_rgb,
-        "train_coarse_alpha": train_alpha,
-        "train_coarse_depth": train_depth,
+        **coarse_at(gaussians, scene.train_cameras, "train"),
         "novel_c2w": np.stack([c2w_opengl(c) for c in scene.test_cameras]),
         "train_c2w": np.stack([c2w_opengl(c) for c in scene.train_cameras]),
         "intrinsics": np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]], np.float64),
@@ -72,8 +69,7 @@ def train_views(scene_dir: Path, gaussians) -> dict[str, np.ndarray]:
     add the depth to a ``pairs.npz`` written before it was stored)."""
     from go_core.scene.loader import load_scene
 
-    rgb, alpha, depth = _render(gaussians.to(device="cpu"), load_scene(scene_dir).train_cameras)
-    return {"train_coarse_rgb": rgb, "train_coarse_alpha": alpha, "train_coarse_depth": depth}
+    return coarse_at(gaussians, load_scene(scene_dir).train_cameras, "train")
 
 
 def on_white(rgba: np.ndarray) -> np.ndarray:

@@ -80,38 +80,45 @@ def fusion_views(gaussians, cameras: list[Camera], settings: MeshSettings) -> li
     return [View(*m) for m in maps]
 
 
-def seen_vertices(
+def seen_counts(
     vertices: np.ndarray, views: list[View], rule: FusionRule, chunk: int = 1 << 17
 ) -> np.ndarray:
-    """bool [V]: the vertices that at least one view sees as surface, by the fusion's own test
+    """int [V]: how many views see each vertex as surface, by the fusion's own test
     (go_core.mesh.tsdf.SurfaceLookup.on_surface: alpha at least ``rule.alpha_threshold`` and a depth within
-    ``rule.truncation`` of theirs). A wall inside a porous model, reached only by rays that carve through it,
-    is seen by none."""
+    ``rule.truncation`` of theirs). A wall inside a porous model, reached only by rays that carve through
+    it, is seen by none, or by the one view that looks down a tunnel onto it."""
     import torch
 
     from go_core.mesh.tsdf import PackedView
 
     packed = [PackedView(v, rule) for v in views]
     points = torch.as_tensor(np.asarray(vertices, np.float32).reshape(-1, 3))
-    seen = torch.zeros(len(points), dtype=torch.bool)
+    counts = torch.zeros(len(points), dtype=torch.int32)
     for start in range(0, len(points), chunk):
         part = points[start : start + chunk]
         for view in packed:
-            seen[start : start + chunk] |= view.lookup(part, rule).on_surface()
-    return seen.numpy()
+            counts[start : start + chunk] += view.lookup(part, rule).on_surface().to(torch.int32)
+    return counts.numpy()
 
 
-def drop_unseen(mesh: TriMesh, views: list[View], rule: FusionRule) -> TriMesh:
-    """The largest component of the faces of ``mesh`` that have a vertex some view sees as surface
-    (``seen_vertices``); a ``CollapsedModelError`` when no view sees any: the model is see-through from
+def seen_vertices(
+    vertices: np.ndarray, views: list[View], rule: FusionRule, min_views: int = 1
+) -> np.ndarray:
+    """bool [V]: the vertices that at least ``min_views`` views see as surface (``seen_counts``)."""
+    return seen_counts(vertices, views, rule) >= min_views
+
+
+def drop_unseen(mesh: TriMesh, views: list[View], rule: FusionRule, min_views: int = 1) -> TriMesh:
+    """The largest component of the faces of ``mesh`` that have a vertex at least ``min_views`` views see
+    as surface (``seen_vertices``); a ``CollapsedModelError`` when none has: the model is see-through from
     every direction, and a mesh of it would be the hull's clip, not the object."""
     from go_core.errors import CollapsedModelError
 
-    keep = seen_vertices(mesh.vertices, views, rule)[mesh.faces].any(axis=1)
+    keep = seen_vertices(mesh.vertices, views, rule, min_views)[mesh.faces].any(axis=1)
     if not keep.any():
         raise CollapsedModelError(
-            f"no view of the {len(views)} fusion views sees any of the mesh's {len(mesh.faces)} faces as "
-            "surface (the model is see-through from every direction)"
+            f"no face of the mesh's {len(mesh.faces)} is seen as surface by {min_views} of the "
+            f"{len(views)} fusion views (the model is see-through from every direction)"
         )
     return largest_component(compact(mesh, keep))
 
@@ -149,8 +156,8 @@ def mesh_from_gaussians(
     t1 = time.perf_counter()
     raw = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
     faces_found = len(raw.faces)
-    if settings.seen_only:
-        raw = drop_unseen(raw, views, rule)
+    if settings.seen_views:
+        raw = drop_unseen(raw, views, rule, settings.seen_views)
     mesh = decimate(raw, settings.max_faces)
     mesh.colours = sample_colours(
         mesh.vertices, tsdf.colour_sums, tsdf.colour_counts, grid.origin, grid.voxel

@@ -26,8 +26,11 @@ class MeshSettings:
         "median", doc="fused depth: where the opacity reaches 1/2, or the alpha-weighted mean"
     )
     clip_to_hull: bool = setting(True, doc="intersect the fused solid with the visual hull of the masks")
-    seen_only: bool = setting(
-        True, doc="drop faces whose vertices no fusion view saw as surface (walls inside a porous model)"
+    seen_views: int = setting(
+        2,
+        ge=0,
+        doc="keep faces with a vertex that at least this many fusion views see as surface (0: keep every "
+        "face; a wall inside a porous model is seen through a tunnel, by one view at most)",
     )
     ellipse_views: int = setting(24, ge=0, doc="fusion views on the ellipse of the training cameras")
     sphere_views: int = setting(40, ge=0, doc="fusion views on a Fibonacci sphere around the object")
