@@ -137,6 +137,29 @@ def build_index(assets_root: Path, seed: int, val_fraction: float) -> dict:
     }
 
 
+def extend_index(index: dict, fresh: dict) -> dict:
+    """``index`` with the objects of ``fresh`` (an index of a larger asset tree) that it lacks. Objects
+    already there keep their entry and split, so held-out figures stay comparable; a new object takes the
+    split of an old object in its geometry group (no near-duplicate across train and val), else the one
+    ``fresh`` drew."""
+    known = {e["name"] for e in index["objects"]}
+    old_split = {}
+    fresh_by_name = {e["name"]: e for e in fresh["objects"]}
+    for name in known & set(fresh_by_name):
+        entry = fresh_by_name[name]
+        old = next(e for e in index["objects"] if e["name"] == name)
+        if not entry["excluded"] and not old["excluded"]:
+            old_split[entry["group"]] = old["split"]
+    added = []
+    for entry in fresh["objects"]:
+        if entry["name"] in known:
+            continue
+        if not entry["excluded"] and entry["group"] in old_split:
+            entry = {**entry, "split": old_split[entry["group"]]}
+        added.append(entry)
+    return {**index, "objects": index["objects"] + added}
+
+
 def code_version() -> str:
     """The repository commit the object was made with (``+dirty`` when the work tree has changes)."""
     repo = Path(__file__).resolve().parents[1]
@@ -395,6 +418,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=12.0,
         help="start no object that would end after this many minutes",
     )
+    ap.add_argument(
+        "--extend-index",
+        action="store_true",
+        help="add the objects of --assets that the existing index lacks (benchmarks/corpus_pybullet.py)",
+    )
     ap.add_argument("--limit", type=int, default=0, help="make at most this many objects in this call")
     ap.add_argument("--only", nargs="*", default=None, help="object names to make (default: all usable)")
     ap.add_argument(
@@ -421,6 +449,9 @@ def main(argv=None) -> int:
     index_path = args.out / "index.json"
     if index_path.exists():
         index = json.loads(index_path.read_text())
+        if args.extend_index:
+            index = extend_index(index, build_index(assets_root, index["seed"], index["val_fraction"]))
+            atomic_write_json(index_path, index)
     else:
         index = build_index(assets_root, args.seed, args.val_fraction)
         from go_core.io.atomic import atomic_write_json

@@ -195,3 +195,26 @@ def test_corpus_makes_one_object_end_to_end(tmp_path):
     )
     shutil.rmtree(folder / "scene")  # the renders are redone from the same job: same images
     assert corpus.make_object(entry, assets, args)["novel_psnr"] == info["novel_psnr"]
+
+
+def test_extend_index_keeps_old_splits_and_puts_a_new_copy_beside_its_group():
+    """A larger asset tree's index adds only the objects the old index lacks; the old entries are kept as
+    they are even where the fresh index drew another split, and a new object in an old object's geometry
+    group takes that object's split (no near-copy across train and val)."""
+    corpus = benchmark_module("repair_corpus")
+
+    def entry(name, group, split, excluded=False):
+        return {"name": name, "excluded": excluded, "group": group, "split": split}
+
+    kept = [entry("a/x", "g1", "val"), entry("a/y", "g2", "train"), entry("a/bad", None, None, True)]
+    old = {"seed": 0, "val_fraction": 0.15, "objects": kept}
+    new = [entry("b/copy_of_x", "g1", "train"), entry("b/new", "g9", "val"), entry("b/res", None, None, True)]
+    redrawn = [entry("a/x", "g1", "train"), entry("a/y", "g2", "train"), entry("a/bad", None, None, True)]
+    fresh = {"objects": redrawn + new}
+    out = corpus.extend_index(old, fresh)
+    assert out["objects"][:3] == old["objects"]
+    added = {e["name"]: e for e in out["objects"][3:]}
+    assert list(added) == ["b/copy_of_x", "b/new", "b/res"]
+    assert added["b/copy_of_x"]["split"] == "val"  # beside a/x, not the fresh draw's "train"
+    assert added["b/new"]["split"] == "val" and added["b/res"]["excluded"]
+    assert out["seed"] == 0 and out["val_fraction"] == 0.15
