@@ -319,3 +319,15 @@ def test_glb_passes_the_khronos_validator(tmp_path):
     assert out.returncode == 0, out.stderr
     issues = json.loads(out.stdout)
     assert issues["numErrors"] == 0, issues["messages"]
+
+
+def test_more_seen_views_than_fusion_views_is_an_error_before_any_work():
+    """``seen_views`` above the number of fusion views would drop every face: refused up front, naming the
+    settings, instead of a misleading 'see-through model' after the fusion."""
+    from go_core.mesh.extract import mesh_from_gaussians
+    from go_core.mesh.settings import MeshSettings
+
+    settings = MeshSettings(seen_views=11, ellipse_views=4, sphere_views=6)
+    box = (np.full(3, -1.0), np.full(3, 1.0))
+    with pytest.raises(ValueError, match=r"mesh.seen_views 11 .* 10 fusion views"):
+        mesh_from_gaussians(None, [], box, settings, masks=[])

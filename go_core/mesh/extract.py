@@ -117,8 +117,8 @@ def drop_unseen(mesh: TriMesh, views: list[View], rule: FusionRule, min_views: i
     keep = seen_vertices(mesh.vertices, views, rule, min_views)[mesh.faces].any(axis=1)
     if not keep.any():
         raise CollapsedModelError(
-            f"no face of the mesh's {len(mesh.faces)} is seen as surface by {min_views} of the "
-            f"{len(views)} fusion views (the model is see-through from every direction)"
+            f"none of the mesh's {len(mesh.faces)} faces has a vertex that {min_views} or more of the "
+            f"{len(views)} fusion views see as surface (the model is see-through from every direction)"
         )
     return largest_component(compact(mesh, keep))
 
@@ -146,6 +146,12 @@ def mesh_from_gaussians(
     ``seconds`` per stage, which differ between runs: keep them out of artifacts)."""
     if settings.clip_to_hull and masks is None:
         raise ValueError("clip_to_hull needs the training masks")
+    if settings.seen_views > settings.ellipse_views + settings.sphere_views:
+        raise ValueError(
+            f"mesh.seen_views {settings.seen_views} asks for more views than the "
+            f"{settings.ellipse_views + settings.sphere_views} fusion views (mesh.ellipse_views + "
+            "mesh.sphere_views): every face would be dropped"
+        )
     t0 = time.perf_counter()
     cameras = fusion_cameras(train_cameras, settings.ellipse_views, settings.sphere_views, settings.max_size)
     grid = VoxelGrid.around(box[0], box[1], settings.resolution)
