@@ -22,16 +22,12 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
+from _final_models import final_gaussians, load_final  # benchmarks/ is on sys.path as a script
 from scipy.spatial import cKDTree
 
-from go_core.coarse.hull import hull_bounds
-from go_core.gaussians import Gaussians
 from go_core.mesh.extract import mesh_from_gaussians
-from go_core.mesh.files import read_mesh_npz
 from go_core.mesh.settings import MeshSettings
 from go_core.metrics.geometry import bounding_radius, sample_surface
-from go_core.scene.loader import load_scene
 from go_core.seeding import numpy_rng
 
 SCENES = ("alphabet_soup", "basket", "milk", "plate", "white_bowl")
@@ -68,13 +64,10 @@ def quantiles(values: np.ndarray) -> list[float] | None:
 
 
 def measure(scene_dir: Path, gaussians: Path, samples: int, far: float) -> dict:
-    scene = load_scene(scene_dir)
-    cams, masks = scene.train_cameras, [v.mask for v in scene.train]
-    box = hull_bounds(cams, masks, min_views=len(cams))
+    final = load_final(scene_dir, gaussians)
+    cams, box, gt = final.cameras, final.box, final.truth
     up, elevations = camera_frame(cams, box)
-    g = Gaussians.load(gaussians).to(dtype=torch.float32)
-    mesh, _ = mesh_from_gaussians(g, cams, box, MeshSettings(), masks)
-    gt = read_mesh_npz(scene_dir / "mesh_world.npz")
+    mesh, _ = mesh_from_gaussians(final.gaussians, cams, box, MeshSettings(), final.masks)
     radius = bounding_radius(gt)
     pp, pn = sample_surface(mesh, samples, numpy_rng(0, "geometry", "pred"))
     gp, gn = sample_surface(gt, samples, numpy_rng(0, "geometry", "gt"))
@@ -107,13 +100,12 @@ def main(argv=None) -> None:
     ap.add_argument("--far", type=float, default=0.04, help="far: farther than this x the truth's radius")
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    models = json.loads(args.models.read_text())["scenes"]
+    models = final_gaussians(args.models, args.variant)
     result = {"command": "python benchmarks/geometry_error_where.py " + " ".join(argv or []),
               "settings": {"samples": args.samples, "far": args.far, "variant": args.variant,
                            "models": str(args.models)}, "scenes": {}}  # fmt: skip
     for name in args.scenes:
-        gaussians = Path(models[name]["variants"][args.variant]["repair_dir"]) / "gaussians.npz"
-        result["scenes"][name] = measure(args.data / name, gaussians, args.samples, args.far)
+        result["scenes"][name] = measure(args.data / name, models[name], args.samples, args.far)
         print(name, json.dumps(result["scenes"][name]), flush=True)
     args.out.write_text(json.dumps(result, indent=1) + "\n")
 

@@ -16,24 +16,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
+from _final_models import final_gaussians, load_final  # benchmarks/ is on sys.path as a script
+from _machine import code_version
 
 from go_core.camera import fit_ellipse
-from go_core.coarse.hull import hull_bounds
-from go_core.gaussians import Gaussians
-from go_core.mesh.extract import clip_to_hull, drop_unseen, fusion_rule, fusion_views, render_maps
-from go_core.mesh.files import read_mesh_npz
+from go_core.mesh.extract import fuse_gaussians, render_maps, surface
 from go_core.mesh.settings import MeshSettings
-from go_core.mesh.surface import decimate, largest_component, marching_cubes
-from go_core.mesh.tsdf import VoxelGrid, fuse_narrow_band
-from go_core.mesh.views import fusion_cameras
 from go_core.metrics.geometry import geometry_metrics
-from go_core.scene.loader import load_scene
 
 
 def seen_heights(g, cams, masks, up: np.ndarray, size: int) -> np.ndarray:
@@ -55,26 +48,20 @@ def seen_heights(g, cams, masks, up: np.ndarray, size: int) -> np.ndarray:
 
 
 def measure(scene_dir: Path, gaussians: Path, quantile: float, samples: int) -> dict:
-    scene = load_scene(scene_dir)
-    cams, masks = scene.train_cameras, [v.mask for v in scene.train]
-    box = hull_bounds(cams, masks, min_views=len(cams))
+    final = load_final(scene_dir, gaussians)
+    cams, masks, gt = final.cameras, final.masks, final.truth
     up = fit_ellipse(cams).normal
-    g = Gaussians.load(gaussians).to(dtype=torch.float32)
     s = MeshSettings()
-    grid = VoxelGrid.around(box[0], box[1], s.resolution)
-    views = fusion_views(g, fusion_cameras(cams, s.ellipse_views, s.sphere_views, s.max_size), s)
-    rule = fusion_rule(s, grid.voxel)
-    field = clip_to_hull(fuse_narrow_band(grid, views, rule).field, grid, cams, masks)
+    fused = fuse_gaussians(final.gaussians, cams, final.box, s, masks)
+    grid, field, truncation = fused.grid, fused.tsdf.field, fused.rule.truncation
     axes = [grid.origin[i] + grid.voxel * np.arange(grid.shape[i]) for i in range(3)]
     height = sum(a * up[i] for i, a in enumerate(np.meshgrid(*axes, indexing="ij")))
-    gt = read_mesh_npz(scene_dir / "mesh_world.npz")
-    estimate = float(np.quantile(seen_heights(g, cams, masks, up, s.max_size), quantile))
+    estimate = float(np.quantile(seen_heights(final.gaussians, cams, masks, up, s.max_size), quantile))
     planes = {"none": None, "estimate": estimate, "truth": float((gt.vertices @ up).min())}
     out = {"gaussians": str(gaussians), "truth_bottom": round(planes["truth"], 4), "cuts": {}}
     for name, h in planes.items():
-        f = field if h is None else np.maximum(field, np.clip((h - height) / rule.truncation, -1, 1))
-        mesh = largest_component(marching_cubes(f.astype(field.dtype), grid.origin, grid.voxel))
-        mesh = decimate(drop_unseen(mesh, views, rule, s.seen_views), s.max_faces)
+        f = field if h is None else np.maximum(field, np.clip((h - height) / truncation, -1, 1))
+        mesh = surface(fused, s, f.astype(field.dtype))[0]
         res = geometry_metrics(mesh, gt, samples, 0)
         out["cuts"][name] = {"height": None if h is None else round(h, 4)} | {
             k: round(float(res[k]), 4) for k in ("chamfer_l1", "accuracy", "completeness", "fscore_1pct")
@@ -93,16 +80,14 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--merge", action="store_true")
     args = ap.parse_args(argv)
-    models = json.loads(args.models.read_text())["scenes"]
-    code = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout
+    models = final_gaussians(args.models, args.variant)
     result = json.loads(args.out.read_text()) if args.merge else {
         "settings": {"quantile": args.quantile, "samples": args.samples, "seed": 0,
                      "models": f"{args.models} ({args.variant})"}, "commands": [], "scenes": {}}  # fmt: skip
     command = f"python benchmarks/geometry_support_plane.py {' '.join(argv)}"
-    result["commands"].append(f"{command} (code {code.strip()})")
+    result["commands"].append(f"{command} (code {code_version()})")
     for name in args.scenes:
-        gaussians = Path(models[name]["variants"][args.variant]["repair_dir"]) / "gaussians.npz"
-        result["scenes"][name] = measure(args.data / name, gaussians, args.quantile, args.samples)
+        result["scenes"][name] = measure(args.data / name, models[name], args.quantile, args.samples)
         print(name, json.dumps(result["scenes"][name]), flush=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")
 

@@ -16,22 +16,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import subprocess
 import time
 from pathlib import Path
 
 import torch
+from _final_models import final_gaussians, load_final  # benchmarks/ is on sys.path as a script
+from _machine import code_version, cpu_name
 from go_pipeline.steps.params import MeshParams
 
-from go_core.coarse.hull import hull_bounds
-from go_core.gaussians import Gaussians
 from go_core.mesh.extract import mesh_from_gaussians
-from go_core.mesh.files import read_mesh_npz
 from go_core.mesh.hull_mesh import hull_mesh
 from go_core.mesh.settings import MeshSettings
 from go_core.metrics.geometry import score_meshes
-from go_core.scene.loader import load_scene
 
 KEYS = ("chamfer_l1", "accuracy", "completeness", "fscore_1pct", "fscore_2pct", "normal_consistency",
         "silhouette_iou")  # fmt: skip
@@ -43,19 +39,17 @@ def rounded(res: dict) -> dict:
 
 def measure(scene_dir: Path, gaussians: Path, variants: dict[str, dict], samples: int, seed: int) -> dict:
     """One scene: the hull mesh's scores and each variant's (scores, ratio to the hull's Chamfer, seconds)."""
-    scene = load_scene(scene_dir)
-    cams, masks = scene.train_cameras, [v.mask for v in scene.train]
-    test_masks = [v.mask for v in scene.test]
-    box = hull_bounds(cams, masks, min_views=len(cams))
-    g = Gaussians.load(gaussians).to(dtype=torch.float32)
-    gt = read_mesh_npz(scene_dir / "mesh_world.npz")
+    final = load_final(scene_dir, gaussians)
+    cams, masks, scene = final.cameras, final.masks, final.scene
     meshes, seconds, infos = {"hull": hull_mesh(cams, masks, MeshParams().hull_resolution)}, {}, {}
     for name, overrides in variants.items():
         t0 = time.perf_counter()
-        meshes[name], info = mesh_from_gaussians(g, cams, box, MeshSettings(**overrides), masks)
+        settings = MeshSettings(**overrides)
+        meshes[name], info = mesh_from_gaussians(final.gaussians, cams, final.box, settings, masks)
         seconds[name] = round(time.perf_counter() - t0, 1)
         infos[name] = {"faces_unseen_dropped": info["faces_unseen_dropped"]}
-    scores = score_meshes(meshes, gt, scene.test_cameras, test_masks, samples, seed)
+    test_masks = [v.mask for v in scene.test]
+    scores = score_meshes(meshes, final.truth, scene.test_cameras, test_masks, samples, seed)
     hull = rounded(scores["hull"])
     out = {"gaussians": str(gaussians), "hull": hull, "variants": {}}
     for name in variants:
@@ -82,18 +76,16 @@ def main(argv: list[str]) -> None:
         name, _, text = item.partition("=")
         variants[name] = json.loads(text)
         MeshSettings(**variants[name])  # an unknown or out-of-range setting stops here, before any work
-    models = json.loads(args.models.read_text())["scenes"]
-    code = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout
+    models = final_gaussians(args.models, args.variant)
     result = json.loads(args.out.read_text()) if args.merge else {
         "settings": {"samples": args.samples, "seed": args.seed, "variants": variants,
                      "models": f"{args.models} ({args.variant})"},
-        "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
+        "machine": cpu_name(), "threads": torch.get_num_threads(),
         "commands": [], "scenes": {}}  # fmt: skip
     command = f"python benchmarks/mesh_settings_final.py {' '.join(argv)}"
-    result["commands"].append(f"{command} (code {code.strip()})")
+    result["commands"].append(f"{command} (code {code_version()})")
     for name in args.scenes:
-        gaussians = Path(models[name]["variants"][args.variant]["repair_dir"]) / "gaussians.npz"
-        result["scenes"][name] = measure(args.data / name, gaussians, variants, args.samples, args.seed)
+        result["scenes"][name] = measure(args.data / name, models[name], variants, args.samples, args.seed)
         print(name, json.dumps(result["scenes"][name]), flush=True)
         args.out.write_text(json.dumps(result, indent=1) + "\n")
 

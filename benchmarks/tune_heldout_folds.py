@@ -17,11 +17,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from go_pipeline.steps._repair_models import _pair_source
+from go_pipeline.steps._repair_models import _pair_source, compact_tune_settings
 from go_pipeline.steps.params import TuneParams
 
 from go_core.compact.restorer import load_restorer
-from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
+from go_core.compact.tuning import held_out_loss, tune_compact
 from go_core.repair.data import training_views
 from go_core.repair.pairs import LooPairs, pair_tensors, training_view_references, with_reference
 
@@ -68,11 +68,7 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", nargs="+", required=True)
     args = ap.parse_args(argv)
     params = TuneParams()
-    settings = CompactTuneSettings(
-        steps=params.compact_steps, lr=params.compact_lr, betas=params.betas,
-        resolution=params.compact_resolution, checkpoint_every=0, method=params.compact_method,
-        rank=params.compact_rank, region=params.compact_region,
-    )  # fmt: skip
+    settings = compact_tune_settings(params)  # no checkpoint folder: its checkpoint_every is unused
     for scene in args.scenes:
         inputs = tune_inputs(args.workroot / scene, args.prior)
         _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])

@@ -57,6 +57,22 @@ def _pair_source(inputs: dict[str, Path], params: TuneParams, views):
     )
 
 
+def compact_tune_settings(params: TuneParams):
+    """The compact tuning's settings (go_core.compact.tuning.CompactTuneSettings) from the tune step's."""
+    from go_core.compact.tuning import CompactTuneSettings
+
+    return CompactTuneSettings(
+        steps=params.compact_steps,
+        lr=params.compact_lr,
+        betas=params.betas,
+        resolution=params.compact_resolution,
+        checkpoint_every=params.checkpoint_every,
+        method=params.compact_method,
+        rank=params.compact_rank,
+        region=params.compact_region,
+    )
+
+
 class CompactModel:
     """The compact restorer: a full fine-tune (or LoRA on its convolutions) with L1 and Adam."""
 
@@ -65,7 +81,7 @@ class CompactModel:
     def tune(self, ctx, inputs: dict[str, Path], params: TuneParams) -> None:
         """Per-scene full fine-tune of the compact restorer (steps/tune.py)."""
         from go_core.compact.restorer import load_restorer
-        from go_core.compact.tuning import CompactTuneSettings, held_out_loss, tune_compact
+        from go_core.compact.tuning import held_out_loss, tune_compact
         from go_core.io.safetensors_file import write_safetensors
         from go_core.repair.data import training_views
         from go_core.repair.pairs import LooPairs, pair_tensors, training_view_references, with_reference
@@ -85,16 +101,7 @@ class CompactModel:
             )
             ctx.record(status="pretrained", repair_model="compact", reason="ablation: no fine-tuning")
             return
-        settings = CompactTuneSettings(
-            steps=params.compact_steps,
-            lr=params.compact_lr,
-            betas=params.betas,
-            resolution=params.compact_resolution,
-            checkpoint_every=params.checkpoint_every,
-            method=params.compact_method,
-            rank=params.compact_rank,
-            region=params.compact_region,
-        )
+        settings = compact_tune_settings(params)
         if settings.resolution % model.scale:
             raise ValueError(
                 f"tune.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"

@@ -6,7 +6,7 @@ vertices from the fused colours (go_core.mesh.surface). Deterministic: no random
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -21,7 +21,7 @@ from go_core.mesh.surface import (
     marching_cubes,
     sample_colours,
 )
-from go_core.mesh.tsdf import FusionRule, View, VoxelGrid, fuse_narrow_band
+from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_band
 from go_core.mesh.views import fusion_cameras
 
 
@@ -134,16 +134,26 @@ def clip_to_hull(
     return np.maximum(field, hull.astype(field.dtype))
 
 
-def mesh_from_gaussians(
+@dataclass
+class Fused:
+    """A model's fused TSDF on ``grid`` (its field clipped to the visual hull when the settings ask), with
+    the rendered ``views`` and the pixel ``rule`` it was fused by: what the surface is extracted from."""
+
+    grid: VoxelGrid
+    views: list[View]
+    rule: FusionRule
+    tsdf: Tsdf
+
+
+def fuse_gaussians(
     gaussians,
     train_cameras: list[Camera],
     box: tuple[np.ndarray, np.ndarray],
     settings: MeshSettings,
     masks: list[np.ndarray] | None = None,
-) -> tuple[TriMesh, dict]:
-    """The coloured surface of ``gaussians`` inside ``box`` (lo, hi; e.g. the visual hull's bounds), clipped
-    to the visual hull of the training ``masks`` when ``settings.clip_to_hull``, and a summary (counts;
-    ``seconds`` per stage, which differ between runs: keep them out of artifacts)."""
+) -> Fused:
+    """``gaussians`` rendered from the fusion cameras and fused over ``box`` (lo, hi; e.g. the visual hull's
+    bounds), clipped to the visual hull of the training ``masks`` when ``settings.clip_to_hull``."""
     if settings.clip_to_hull and masks is None:
         raise ValueError("clip_to_hull needs the training masks")
     if settings.seen_views > settings.ellipse_views + settings.sphere_views:
@@ -152,31 +162,55 @@ def mesh_from_gaussians(
             f"{settings.ellipse_views + settings.sphere_views} fusion views (mesh.ellipse_views + "
             "mesh.sphere_views): every face would be dropped"
         )
-    t0 = time.perf_counter()
     cameras = fusion_cameras(train_cameras, settings.ellipse_views, settings.sphere_views, settings.max_size)
     grid = VoxelGrid.around(box[0], box[1], settings.resolution)
     views, rule = fusion_views(gaussians, cameras, settings), fusion_rule(settings, grid.voxel)
     tsdf = fuse_narrow_band(grid, views, rule)
     if settings.clip_to_hull:
         tsdf.field = clip_to_hull(tsdf.field, grid, train_cameras, masks)
-    t1 = time.perf_counter()
-    raw = largest_component(marching_cubes(tsdf.field, grid.origin, grid.voxel))
-    faces_found = len(raw.faces)
+    return Fused(grid, views, rule, tsdf)
+
+
+def surface(
+    fused: Fused, settings: MeshSettings, field: np.ndarray | None = None
+) -> tuple[TriMesh, int, int]:
+    """The coloured mesh of ``field`` (default: the fused one) on the fused grid: marching cubes, the
+    largest component, the faces fewer than ``settings.seen_views`` views see dropped, decimated, vertex
+    colours from the fused colours; with the face counts found and kept before decimation."""
+    grid, field = fused.grid, fused.tsdf.field if field is None else field
+    raw = largest_component(marching_cubes(field, grid.origin, grid.voxel))
+    found = len(raw.faces)
     if settings.seen_views:
-        raw = drop_unseen(raw, views, rule, settings.seen_views)
+        raw = drop_unseen(raw, fused.views, fused.rule, settings.seen_views)
     mesh = decimate(raw, settings.max_faces)
     mesh.colours = sample_colours(
-        mesh.vertices, tsdf.colour_sums, tsdf.colour_counts, grid.origin, grid.voxel
+        mesh.vertices, fused.tsdf.colour_sums, fused.tsdf.colour_counts, grid.origin, grid.voxel
     )
+    return mesh, found, len(raw.faces)
+
+
+def mesh_from_gaussians(
+    gaussians,
+    train_cameras: list[Camera],
+    box: tuple[np.ndarray, np.ndarray],
+    settings: MeshSettings,
+    masks: list[np.ndarray] | None = None,
+) -> tuple[TriMesh, dict]:
+    """The coloured surface of ``gaussians`` inside ``box`` (``fuse_gaussians``, then ``surface``) and a
+    summary (counts; ``seconds`` per stage, which differ between runs: keep them out of artifacts)."""
+    t0 = time.perf_counter()
+    fused = fuse_gaussians(gaussians, train_cameras, box, settings, masks)
+    t1 = time.perf_counter()
+    mesh, faces_found, faces_kept = surface(fused, settings)
     t2 = time.perf_counter()
     info = {
         "settings": asdict(settings),
-        "views": len(cameras),
-        "grid": list(grid.shape),
-        "voxel": grid.voxel,
-        "truncation": settings.truncation_voxels * grid.voxel,
-        "faces_unseen_dropped": int(faces_found - len(raw.faces)),
-        "faces_before_decimation": int(len(raw.faces)),
+        "views": len(fused.views),
+        "grid": list(fused.grid.shape),
+        "voxel": fused.grid.voxel,
+        "truncation": settings.truncation_voxels * fused.grid.voxel,
+        "faces_unseen_dropped": int(faces_found - faces_kept),
+        "faces_before_decimation": int(faces_kept),
         "vertices": int(len(mesh.vertices)),
         "faces": int(len(mesh.faces)),
         "seconds": {"fuse": round(t1 - t0, 3), "surface": round(t2 - t1, 3)},  # not for artifacts
