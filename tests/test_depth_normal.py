@@ -61,7 +61,7 @@ def test_flatten_loss_value_and_gradient():
     loss = flatten_loss(log_scales, extent=2.0)
     assert loss.item() == pytest.approx((0.1 + 0.05) / 2 / 2.0)
     assert torch.autograd.gradcheck(lambda t: flatten_loss(t, 2.0), (log_scales,))
-    g = RegularizerConfig(lambda_opacity=0.0, lambda_flatten=3.0)
+    g = RegularizerConfig(lambda_opacity=0.0, lambda_anisotropy=0.0, lambda_flatten=3.0)
     gs = Gaussians.from_points(torch.zeros(2, 3), torch.rand(2, 3), torch.full((2,), 0.1), 0.5, 0)
     total, parts = regularization_loss(g, gs, torch.rand(4, 4), None, extent=2.0)
     assert set(parts) == {"flatten"}

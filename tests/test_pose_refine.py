@@ -122,6 +122,7 @@ def _joint_config(refine: bool, iterations: int = 800):
         floaters=False,
         drop_gamma=0.0,
         lambda_opacity=0.0,
+        lambda_anisotropy=0.0,
         refine_poses=refine,
         pose_refine_from=0,
         pose_lr_rotation=5e-3,

@@ -58,7 +58,7 @@ def test_inside_term_in_the_regulariser_sum_uses_the_eroded_mask():
     alpha = torch.rand(10, 10, generator=torch.Generator().manual_seed(1))
     mask = torch.zeros(10, 10)
     mask[1:9, 1:9] = 1.0
-    cfg = RegularizerConfig(lambda_opacity=0.0, lambda_inside=0.5, inside_erode_px=1)
+    cfg = RegularizerConfig(lambda_opacity=0.0, lambda_anisotropy=0.0, lambda_inside=0.5, inside_erode_px=1)
     total, parts = regularization_loss(cfg, g, alpha, mask, 1.0)
     want = 0.5 * inside_alpha_loss(alpha, eroded_mask(mask, 1))
     assert set(parts) == {"inside_alpha"} and float(total) == pytest.approx(float(want), rel=1e-6)

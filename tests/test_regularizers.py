@@ -139,7 +139,8 @@ def test_regularization_loss_sums_the_enabled_terms():
     g = Gaussians.from_points(torch.randn(6, 3), torch.rand(6, 3), torch.full((6,), 0.1), 0.5, 0)
     g.log_scales[:, 0] += 3.0
     alpha, mask = torch.rand(4, 4), (torch.rand(4, 4) > 0.5).float()
-    assert regularization_loss(RegularizerConfig(lambda_opacity=0.0), g, alpha, mask, 1.0) == (None, {})
+    off = RegularizerConfig(lambda_opacity=0.0, lambda_anisotropy=0.0)  # both on by default
+    assert regularization_loss(off, g, alpha, mask, 1.0) == (None, {})
     cfg = RegularizerConfig(lambda_outside=2.0, lambda_anisotropy=0.5, max_anisotropy=3.0, lambda_opacity=0.1)
     total, parts = regularization_loss(cfg, g, alpha, mask, 1.0)
     want = (

@@ -65,6 +65,7 @@ def _tiny_config(iterations=40) -> CoarseConfig:
         iterations=iterations,
         drop_gamma=0.0,  # plain 3DGS here (the regularisers: tests/test_regularizers.py)
         lambda_opacity=0.0,
+        lambda_anisotropy=0.0,
         position_lr_init=3e-3,
         position_lr_final=3e-4,
         position_lr_max_steps=iterations,

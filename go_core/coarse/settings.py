@@ -104,7 +104,12 @@ class RegularizerConfig:
 
     drop_gamma: float = setting(0.2, ge=0, lt=1, doc="DropGaussian: final drop rate (rate gamma t/T)")
     lambda_outside: float = setting(0.0, ge=0, doc="alpha^2 outside the training masks; 0: off")
-    lambda_anisotropy: float = setting(0.0, ge=0, doc="hinge on max/min scale ratio above max_anisotropy")
+    lambda_anisotropy: float = setting(
+        0.01,
+        ge=0,
+        doc="hinge on max/min scale ratio above max_anisotropy; 0: off (on since it measured better on real "
+        "captures, docs/real_captures.md)",
+    )
     max_anisotropy: float = setting(10.0, ge=1)
     lambda_opacity: float = setting(0.01, ge=0, doc="opacity decay: mean opacity; 0: off")
     lambda_inside: float = setting(0.0, ge=0, doc="(1 - alpha)^2 inside the eroded training masks; 0: off")
