@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from go_core.camera import look_at
+from go_core.camera import look_at, raise_towards
 from go_core.repair.arcs import RepairArcs
 from go_core.repair.loss import repair_image_loss
 from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_decay, neighbour_dmax
@@ -45,6 +45,39 @@ def test_views_lie_on_middle_80_percent_of_arcs():
         assert np.linalg.norm(refs - c, axis=1).min() >= chord_min - 1e-6
     fracs = np.array([arcs.arc_position(v.theta)[1] for v in views])
     assert fracs.min() < 0.12 and fracs.max() > 0.88  # the whole middle part is used
+
+
+def elevation_deg(position: np.ndarray) -> float:
+    return float(np.degrees(np.arcsin(position[2] / np.linalg.norm(position))))
+
+
+def test_lifted_views_are_raised_twins():
+    """lift_deg adds after each view its twin at the same azimuth and distance, that many degrees higher,
+    looking at the target; the base views are those drawn without it."""
+    train = ring_cameras([30, 120, 210, 300])  # 20 degrees above the target, radius 3.2
+    arcs = RepairArcs.from_cameras(train, keep=0.8)
+    base = arcs.sample(np.random.default_rng(3), per_arc=2)
+    lifted = arcs.sample(np.random.default_rng(3), per_arc=2, lift_deg=30.0)
+    assert len(lifted) == 2 * len(base)
+    assert [v.camera.name for v in lifted[::2]] == [v.camera.name for v in base]
+    for b, v, up in zip(base, lifted[::2], lifted[1::2], strict=True):
+        np.testing.assert_allclose(v.camera.center, b.camera.center, atol=1e-12)
+        assert (up.arc, up.theta) == (b.arc, b.theta) and up.camera.name == b.camera.name + "_up"
+        c, u = b.camera.center, up.camera.center
+        assert np.linalg.norm(u) == pytest.approx(np.linalg.norm(c), abs=1e-9)
+        assert elevation_deg(u) == pytest.approx(elevation_deg(c) + 30.0, abs=1e-6)
+        assert np.degrees(np.arctan2(u[1], u[0])) == pytest.approx(
+            np.degrees(np.arctan2(c[1], c[0])), abs=1e-6
+        )
+        assert np.dot(up.camera.forward, -u / np.linalg.norm(u)) > 1 - 1e-9  # looks at the target
+
+
+def test_raise_towards_stops_below_the_pole():
+    target, up = np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 2.0])
+    raised = raise_towards(target + np.array([2.0, 0.0, 0.0]), target, up, 120.0)
+    assert elevation_deg(raised - target) == pytest.approx(89.0, abs=1e-9)
+    with pytest.raises(ValueError, match="up axis"):
+        raise_towards(target + np.array([0.0, 0.0, 2.0]), target, up, 10.0)
 
 
 def test_arcs_depend_on_training_cameras_only():

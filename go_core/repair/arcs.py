@@ -72,10 +72,16 @@ class RepairArcs:
         raise AssertionError("angle on no arc")  # arcs cover the whole ellipse
 
     def sample(
-        self, rng: np.random.Generator, per_arc: int, like: Camera | None = None, name_prefix: str = "repair"
+        self,
+        rng: np.random.Generator,
+        per_arc: int,
+        like: Camera | None = None,
+        name_prefix: str = "repair",
+        lift_deg: float = 0.0,
     ) -> list[RepairView]:
         """``per_arc`` views drawn uniformly from the middle part of every arc; each looks at the target with
-        the intrinsics of the nearer reference of its arc (or ``like``)."""
+        the intrinsics of the nearer reference of its arc (or ``like``). ``lift_deg`` > 0 adds, after each
+        view, its twin raised by that angle above the ellipse (towards the cameras' up)."""
         views = []
         for i in range(len(self)):
             lo, hi = self.sample_range(i)
@@ -89,6 +95,9 @@ class RepairArcs:
                 )
                 cam = self.ellipse.camera(f"{name_prefix}_{i}_{j}", theta, like or near)
                 views.append(RepairView(cam, i, theta))
+                if lift_deg:
+                    up = self.ellipse.camera(f"{name_prefix}_{i}_{j}_up", theta, like or near, lift_deg)
+                    views.append(RepairView(up, i, theta))
         return views
 
     def reference_positions(self) -> np.ndarray:

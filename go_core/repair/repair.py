@@ -161,7 +161,7 @@ class RepairCache:
         gen = torch_generator(self.seed, "repair_views", period)
         out = []
         with_alpha = getattr(self.diffusion, "channels", 3) >= 4  # a repair prior: RGB + alpha in and out
-        for rv in self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}"):
+        for rv in self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}", lift_deg=s.lift_deg):
             rgb, alpha, depth = render_rgb_alpha_depth(g, rv.camera, s.backend, self.sh_degree)
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)

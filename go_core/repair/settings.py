@@ -47,6 +47,13 @@ class RepairSettings:
     loss: Literal["lrep", "sds"] = setting("lrep", doc="sds: score distillation instead of L_rep (ablation)")
     refresh_every: int = setting(200, ge=1, doc="repaired images re-made from the current Gaussians")
     views_per_arc: int = setting(2, ge=1, doc="repaired views per repair path per refresh")
+    lift_deg: float = setting(
+        0.0,
+        ge=0,
+        lt=90,
+        doc="> 0: every repaired view gets a twin raised this many degrees above the training ellipse "
+        "(views from above, which real captures' test views have; docs/real_captures.md)",
+    )
     keep: float = setting(0.8, gt=0, le=1, doc="middle fraction of each arc between reference views sampled")
     t_range: tuple[float, float] = setting((0.1, 1.0), gt=0, le=1, doc="SDEdit strength t/T")
     strength_range: tuple[float, float] = setting((0.5, 1.0), gt=0, le=1, doc="compact: blend b, w = b")
