@@ -173,13 +173,9 @@ class Ellipse:
         d = np.atleast_2d(point) - self.center
         return np.mod(np.arctan2((d @ self.v) / self.b, (d @ self.u) / self.a), 2 * np.pi)
 
-    def camera(self, name: str, theta: float, like: Camera, lift_deg: float = 0.0) -> Camera:
-        """A camera on the ellipse at ``theta``, looking at the target, with the intrinsics of ``like``;
-        ``lift_deg`` > 0 raises it by that angle towards ``normal`` about the target (same distance)."""
-        position = self.point(theta)
-        if lift_deg:
-            position = raise_towards(position, self.target, self.normal, lift_deg)
-        return look_at(name, position, self.target, self.normal, like.K, like.width, like.height)
+    def camera(self, name: str, theta: float, like: Camera) -> Camera:
+        """A camera on the ellipse at ``theta``, looking at the target, with the intrinsics of ``like``."""
+        return look_at(name, self.point(theta), self.target, self.normal, like.K, like.width, like.height)
 
 
 def raise_towards(position: np.ndarray, target: np.ndarray, up: np.ndarray, degrees: float) -> np.ndarray:

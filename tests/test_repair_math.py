@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from go_core.camera import look_at, raise_towards
-from go_core.repair.arcs import RepairArcs
+from go_core.repair.arcs import RepairArcs, with_raised_twins
 from go_core.repair.loss import repair_image_loss
 from go_core.repair.weights import distance_weight, dreamfusion_weight, lrep_decay, neighbour_dmax
 
@@ -52,12 +52,12 @@ def elevation_deg(position: np.ndarray) -> float:
 
 
 def test_lifted_views_are_raised_twins():
-    """lift_deg adds after each view its twin at the same azimuth and distance, that many degrees higher,
-    looking at the target; the base views are those drawn without it."""
+    """repair.lift_deg adds after each view its twin at the same azimuth and distance, that many degrees
+    higher, looking at the target; the base views are those drawn without it."""
     train = ring_cameras([30, 120, 210, 300])  # 20 degrees above the target, radius 3.2
     arcs = RepairArcs.from_cameras(train, keep=0.8)
     base = arcs.sample(np.random.default_rng(3), per_arc=2)
-    lifted = arcs.sample(np.random.default_rng(3), per_arc=2, lift_deg=30.0)
+    lifted = with_raised_twins(arcs.sample(np.random.default_rng(3), per_arc=2), arcs.ellipse, 30.0)
     assert len(lifted) == 2 * len(base)
     assert [v.camera.name for v in lifted[::2]] == [v.camera.name for v in base]
     for b, v, up in zip(base, lifted[::2], lifted[1::2], strict=True):

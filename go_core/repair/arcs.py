@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from go_core.camera import Camera, Ellipse, fit_ellipse
+from go_core.camera import Camera, Ellipse, fit_ellipse, look_at, raise_towards
 
 TWO_PI = 2.0 * np.pi
 
@@ -72,16 +72,10 @@ class RepairArcs:
         raise AssertionError("angle on no arc")  # arcs cover the whole ellipse
 
     def sample(
-        self,
-        rng: np.random.Generator,
-        per_arc: int,
-        like: Camera | None = None,
-        name_prefix: str = "repair",
-        lift_deg: float = 0.0,
+        self, rng: np.random.Generator, per_arc: int, like: Camera | None = None, name_prefix: str = "repair"
     ) -> list[RepairView]:
         """``per_arc`` views drawn uniformly from the middle part of every arc; each looks at the target with
-        the intrinsics of the nearer reference of its arc (or ``like``). ``lift_deg`` > 0 adds, after each
-        view, its twin raised by that angle above the ellipse (towards the cameras' up)."""
+        the intrinsics of the nearer reference of its arc (or ``like``)."""
         views = []
         for i in range(len(self)):
             lo, hi = self.sample_range(i)
@@ -95,10 +89,20 @@ class RepairArcs:
                 )
                 cam = self.ellipse.camera(f"{name_prefix}_{i}_{j}", theta, like or near)
                 views.append(RepairView(cam, i, theta))
-                if lift_deg:
-                    up = self.ellipse.camera(f"{name_prefix}_{i}_{j}_up", theta, like or near, lift_deg)
-                    views.append(RepairView(up, i, theta))
         return views
 
     def reference_positions(self) -> np.ndarray:
         return np.stack([c.center for c in self.references])
+
+
+def with_raised_twins(views: list[RepairView], ellipse: Ellipse, degrees: float) -> list[RepairView]:
+    """Each view followed by its twin ``<name>_up``: raised by ``degrees`` of elevation towards the
+    ellipse's normal (the cameras' up) about its target, at the same distance, looking at the target with
+    the same intrinsics (``repair.lift_deg``: real captures' test views from above)."""
+    out = []
+    for v in views:
+        c = v.camera
+        position = raise_towards(ellipse.point(v.theta), ellipse.target, ellipse.normal, degrees)
+        twin = look_at(f"{c.name}_up", position, ellipse.target, ellipse.normal, c.K, c.width, c.height)
+        out += [v, RepairView(twin, v.arc, v.theta)]
+    return out

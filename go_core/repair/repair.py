@@ -35,7 +35,7 @@ from go_core.camera import Camera
 from go_core.diffusion.frame import Frame
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.gaussians import Gaussians
-from go_core.repair.arcs import RepairArcs
+from go_core.repair.arcs import RepairArcs, with_raised_twins
 from go_core.repair.data import (
     bchw_to_hwc,
     framed_input,
@@ -161,7 +161,10 @@ class RepairCache:
         gen = torch_generator(self.seed, "repair_views", period)
         out = []
         with_alpha = getattr(self.diffusion, "channels", 3) >= 4  # a repair prior: RGB + alpha in and out
-        for rv in self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}", lift_deg=s.lift_deg):
+        views = self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}")
+        if s.lift_deg:
+            views = with_raised_twins(views, self.arcs.ellipse, s.lift_deg)
+        for rv in views:
             rgb, alpha, depth = render_rgb_alpha_depth(g, rv.camera, s.backend, self.sh_degree)
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
