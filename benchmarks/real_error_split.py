@@ -45,33 +45,42 @@ def nearest_training_angle(cam, train_cams, centre: np.ndarray) -> float:
 def split_view(
     render: np.ndarray, alpha: np.ndarray, photo: np.ndarray, mask: np.ndarray, hull: np.ndarray
 ) -> dict:
-    """Summed squared error per pixel class, the view's PSNR and its PSNR with the photo's silhouette, and
-    the excess (object rendered where the photo has none) of the model and of the hull."""
+    """Pixels and summed squared error per pixel class, the view's PSNR and its PSNR with the photo's
+    silhouette, and the hull's excess (object where the photo has none) and IoU. The model's excess and
+    IoU follow from the classes (``model_silhouette``)."""
     import cv2
 
-    truth = photo * mask[..., None] + (1.0 - mask[..., None])
-    err = ((render - truth) ** 2).mean(axis=-1)
+    from go_core.io.images import composite
+    from go_core.metrics.error_split import split_errors
+
+    truth = composite(photo, mask)
     m, a = mask > 0.5, alpha > 0.5
     classes = {"both": m & a, "mask_only": m & ~a, "render_only": ~m & a, "neither": ~m & ~a}
+    outside = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3)
+    classes_and_edge = {**classes, "render_only_edge": classes["render_only"] & (outside <= 3)}
+    split = split_errors(render, truth, classes_and_edge)
     a3 = alpha[..., None]
     colour = np.where(a3 >= 0.05, (render - (1.0 - a3)) / np.maximum(a3, 0.05), 1.0)
-    oracle = np.clip(colour, 0, 1) * mask[..., None] + (1.0 - mask[..., None])
+    oracle = composite(np.clip(colour, 0, 1), mask)
+    mse = sum(split[k]["sse"] for k in CLASSES) / mask.size
     mse_oracle = float(((oracle - truth) ** 2).mean())
-    mse = float(err.mean())
-    outside = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3)
-    edge = classes["render_only"] & (outside <= 3)
     return {
-        "render_only_sse_edge": float(err[edge].sum()),
-        "excess_px": {"model": int((a & ~m).sum()), "hull": int((hull & ~m).sum())},
-        "iou": {
-            "model": float((a & m).sum() / max((a | m).sum(), 1)),
-            "hull": float((hull & m).sum() / max((hull | m).sum(), 1)),
+        "render_only_sse_edge": split.pop("render_only_edge")["sse"],
+        "hull": {
+            "excess_px": int((hull & ~m).sum()),
+            "iou": float((hull & m).sum() / max((hull | m).sum(), 1)),
         },
         "psnr": -10 * np.log10(max(mse, 1e-12)),
         "oracle_silhouette_psnr": -10 * np.log10(max(mse_oracle, 1e-12)),
-        "sse": {k: float(err[v].sum()) for k, v in classes.items()},
-        "pixels": {k: int(v.sum()) for k, v in classes.items()},
+        "sse": {k: v["sse"] for k, v in split.items()},
+        "pixels": {k: v["pixels"] for k, v in split.items()},
     }
+
+
+def model_silhouette(pixels: dict) -> tuple[int, float]:
+    """The model's excess pixels and silhouette IoU from a view's pixel classes."""
+    union = pixels["both"] + pixels["mask_only"] + pixels["render_only"]
+    return pixels["render_only"], pixels["both"] / max(union, 1)
 
 
 def measure(scene_dir: Path, workdir: Path, overrides: dict) -> dict:
@@ -112,8 +121,14 @@ def measure(scene_dir: Path, workdir: Path, overrides: dict) -> dict:
         "model": final.source,
         "sse_share": {k: round(total[k] / s, 4) for k in CLASSES},
         "render_only_edge_share": round(sum(v["render_only_sse_edge"] for v in views) / s, 4),
-        "excess_px": {k: int(sum(v["excess_px"][k] for v in views)) for k in ("model", "hull")},
-        "mean_iou": {k: float(np.mean([v["iou"][k] for v in views])) for k in ("model", "hull")},
+        "excess_px": {
+            "model": int(sum(model_silhouette(v["pixels"])[0] for v in views)),
+            "hull": int(sum(v["hull"]["excess_px"] for v in views)),
+        },
+        "mean_iou": {
+            "model": float(np.mean([model_silhouette(v["pixels"])[1] for v in views])),
+            "hull": float(np.mean([v["hull"]["iou"] for v in views])),
+        },
         "mean_psnr": float(np.mean([v["psnr"] for v in views])),
         "mean_oracle_silhouette_psnr": float(np.mean([v["oracle_silhouette_psnr"] for v in views])),
         "views": views,

@@ -154,10 +154,10 @@ class SeenSurface:
 
 
 def split_errors(pred: np.ndarray, gt: np.ndarray, regions: dict[str, np.ndarray]) -> dict[str, dict]:
-    """Per region: its pixels and the sum over them of the squared error (mean over the channels) of
-    ``pred`` against ``gt`` (both [H,W,3] in [0, 1])."""
+    """Per region of ``regions`` (bool [H,W] maps, e.g. ``SeenSurface.regions``'): its pixels and the sum
+    over them of the squared error (mean over the channels) of ``pred`` against ``gt`` ([H,W,3] in [0, 1])."""
     sq = ((np.asarray(pred, np.float64) - np.asarray(gt, np.float64)) ** 2).mean(-1)
-    return {r: {"pixels": int(regions[r].sum()), "sse": float(sq[regions[r]].sum())} for r in REGIONS}
+    return {r: {"pixels": int(where.sum()), "sse": float(sq[where].sum())} for r, where in regions.items()}
 
 
 def summarise(per_view: list[dict[str, dict]]) -> dict[str, dict]:
