@@ -19,7 +19,8 @@ replaces, as 1 − ᾱ_t is the fraction of signal SDEdit replaces by noise). λ
 schedule are unchanged. A repair prior (go_core.compact.prior, ``channels`` 4 or 8) also gets the render's
 alpha, and with 8 channels the nearest training view warped through the render's expected depth
 (go_core.compact.reference); its repaired alpha is kept with the view and ``alpha_weight`` · L1(alpha) joins
-the view's image loss (the mask target of issue 34).
+the view's image loss (the mask target of issue 34). Given a second model of the scene (``consensus``), each
+novel view's repair input is what both models render (go_core.repair.consensus), not the render alone.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from go_core.diffusion.frame import Frame
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.gaussians import Gaussians
 from go_core.repair.arcs import RepairArcs, with_raised_twins
+from go_core.repair.consensus import agreed_render
 from go_core.repair.data import (
     bchw_to_hwc,
     framed_input,
@@ -87,9 +89,11 @@ class RepairCache:
         directory: Path | None,
         sh_degree: int,
         references=None,
+        consensus: Gaussians | None = None,
     ) -> None:
         self.arcs = arcs
         self.references = references  # ReferenceViews for a prior with a reference input, else None
+        self.consensus = consensus  # a second model of the scene: restore what both render (consensus.py)
         self.diffusion = diffusion
         self.settings = settings
         self.seed = int(seed)
@@ -166,6 +170,11 @@ class RepairCache:
             views = with_raised_twins(views, self.arcs.ellipse, s.lift_deg)
         for rv in views:
             rgb, alpha, depth = render_rgb_alpha_depth(g, rv.camera, s.backend, self.sh_degree)
+            if self.consensus is not None:
+                other_rgb, other_alpha, _ = render_rgb_alpha_depth(
+                    self.consensus, rv.camera, s.backend, self.consensus.sh_degree
+                )
+                rgb, alpha = agreed_render(rgb, alpha, other_rgb, other_alpha)
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
             reference = None
@@ -306,8 +315,10 @@ def repair_gaussians(
     checkpoint_dir: Path | None = None,
     lpips: LpipsFn | None = None,
     on_progress: Callable[[int, dict], None] | None = None,
+    consensus: Gaussians | None = None,
 ) -> tuple[Gaussians, dict, dict]:
-    """Run the repair optimisation; returns (repaired Gaussians, summary, run facts).
+    """Run the repair optimisation; returns (repaired Gaussians, summary, run facts). With ``consensus`` (a
+    second model of the scene) each novel view's repair input is what both models render (consensus.py).
 
     The summary depends only on the inputs (identical after a resume); the run facts (resume point, refreshes
     computed in this process, L_rep log) describe this particular process."""
@@ -324,6 +335,7 @@ def repair_gaussians(
         None if checkpoint_dir is None else Path(checkpoint_dir) / "refresh",
         sh,
         _references(diffusion, views),
+        consensus,
     )
     extra = _RepairLoss(arcs, cache, diffusion, settings, seed, sh, lpips, log=[])
     config = settings.training_config(sh)
