@@ -17,7 +17,6 @@ costs a second coarse and repair run (the leave-one-out runs and the tuning are 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -41,25 +40,22 @@ def final_run(scene_dir: Path, workdir: Path, overrides: dict, seed: int):
     return summary, art.read_gaussians(final.folder)
 
 
-def repair_with(summary, overrides: dict, consensus, seed: int):
-    """The repair step's optimisation on the summary's coarse model and tuned restorer, with ``consensus``."""
+def repair_with(summary, consensus, seed: int):
+    """The repair step's optimisation on the summary's coarse model and tuned restorer, with the params the
+    run's repair step resolved (its manifest), and ``consensus``."""
     from go_pipeline.steps._repair_models import repair_model_named
     from go_pipeline.steps.params import RepairParams
     from go_pipeline.steps.repair import _lpips
 
     from go_core import artifacts as art
+    from go_core.config import from_mapping
     from go_core.repair.data import training_views
     from go_core.repair.repair import repair_gaussians
 
-    inputs = {k: Path(summary.step(k).artifact_dir) for k in ("scene", "mask", "coarse", "tune")}
+    inputs = {k: Path(summary.step(k).artifact_dir) for k in ("scene", "mask", "coarse", "tune", "repair")}
+    manifest = json.loads((inputs["repair"] / "manifest.json").read_text())
+    params = from_mapping(RepairParams, manifest["params"])
     tune_info = art.read_json(inputs["tune"], art.TUNE_INFO)
-    params = RepairParams()
-    for key, value in overrides.items():  # the repair step's params and the coarse settings it carries
-        step, _, name = key.partition(".")
-        if step == "repair":
-            params = dataclasses.replace(params, **{name: value})
-        elif step == "coarse":
-            params = dataclasses.replace(params, coarse=dataclasses.replace(params.coarse, **{name: value}))
     model = repair_model_named(str(tune_info.get("repair_model", "sd15")))
     diffusion, _, settings = model.load(inputs, tune_info, params, "cpu")
     lpips, _ = _lpips(params.lpips_net, settings.lpips)
@@ -72,13 +68,16 @@ def repair_with(summary, overrides: dict, consensus, seed: int):
 
 
 def per_view_psnr(renders: list[np.ndarray], scene) -> list[float]:
-    from go_core.io.images import composite
+    """Each test view's PSNR against the eval step's ground truth."""
+    import torch
+    from go_pipeline.steps.eval import ground_truths
 
-    out = []
-    for render, view in zip(renders, scene.test, strict=True):
-        truth = composite(np.asarray(view.image, np.float32), np.asarray(view.mask, np.float32))
-        out.append(round(float(-10 * np.log10(max(float(((render - truth) ** 2).mean()), 1e-12))), 3))
-    return out
+    from go_core.metrics.psnr import psnr
+
+    return [
+        round(psnr(torch.from_numpy(render), torch.from_numpy(truth)), 3)
+        for render, truth in zip(renders, ground_truths(scene), strict=True)
+    ]
 
 
 def measure(scene_dir: Path, workdir_a: Path, workdir_b: Path, overrides: dict, suite) -> dict:
@@ -87,7 +86,7 @@ def measure(scene_dir: Path, workdir_a: Path, workdir_b: Path, overrides: dict, 
     summary_a, model_a = final_run(scene_dir, workdir_a, overrides, 0)
     _, model_b = final_run(scene_dir, workdir_b, overrides, SEED_B)
     start = time.process_time()
-    agreed = repair_with(summary_a, overrides, model_b, 0)
+    agreed = repair_with(summary_a, model_b, 0)
     cpu = time.process_time() - start
     scene = art.read_scene(summary_a.step("scene").artifact_dir)
     entry = {"consensus_repair_cpu_s": round(cpu, 1)}
