@@ -14,12 +14,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from go_core import artifacts as art
-from go_core.coarse.depth_prior import load_depth_priors
-from go_core.coarse.loop import TrainView, optimize
+from go_core.coarse.fit import coarse_inputs, fit_coarse
 from go_core.io.checkpoint import CheckpointSpec
 from go_core.io.curves import write_curves
-from go_core.poses.refine import apply_corrections
-from go_core.seeding import torch_generator
 
 if TYPE_CHECKING:
     from go_pipeline.steps.params import CoarseParams
@@ -34,19 +31,7 @@ def _poses_summary(aligned: bool, refined: bool) -> str:
 
 def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     t0 = time.process_time()
-    scene = art.read_scene(inputs["scene"])
-    masks = art.read_masks(inputs["mask"], len(scene.train))
-    init = art.read_gaussians(inputs["hull"])
-    depths = load_depth_priors(inputs["depth"]) if "depth" in inputs else None
-    if depths is not None and len(depths) != len(scene.train):
-        depths = None
-    aligned = art.cameras_aligned(inputs["hull"])  # hull.align_poses: start from the hull's cameras
-    cameras = art.read_fitted_cameras(inputs["hull"], scene.train_cameras)
-    views = [
-        TrainView.from_arrays(c, v.image, m, depths[i] if depths is not None else None)
-        for i, (v, c, m) in enumerate(zip(scene.train, cameras, masks, strict=True))
-    ]
-    generator = torch_generator(int(ctx.seed))  # the run's seed itself (derive_seed without tags)
+    fit_inputs = coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth"))
     state: dict = {"bar": None}
 
     def progress(step: int, info: dict) -> None:
@@ -56,17 +41,13 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
 
     config = params.scaled_schedule()  # the schedules at the budget coarse.iterations
     spec = CheckpointSpec(Path(ctx.checkpoint_dir), every=params.checkpoint_every)
-    gaussians, stats = optimize(
-        init, views, config, generator=generator, on_progress=progress, checkpoint=spec
-    )
+    # the run's seed itself (derive_seed without tags); nothing half-written: a collapse fails before writing
+    gaussians, stats, cameras = fit_coarse(fit_inputs, config, int(ctx.seed), spec, progress)
     if state["bar"] is not None:
         state["bar"].close()
-    stats.check_not_collapsed()  # nothing half-written: the step fails before its artifact
     art.write_gaussians(ctx.out_dir, gaussians)
     write_curves(art.CURVES.path(ctx.out_dir), stats.loss_log)  # loss, train PSNR, Gaussians per logged step
-    cameras = [v.camera for v in views]
-    if stats.pose_corrections is not None:  # coarse.refine_poses: the cameras the Gaussians were fitted with
-        cameras = apply_corrections(cameras, stats.pose_corrections)
+    aligned = fit_inputs.aligned  # hull.align_poses: started from the hull's cameras
     art.write_cameras(ctx.out_dir, cameras, stats.pose_corrections, aligned=aligned)
     cpu_s = time.process_time() - t0
     info = {
@@ -75,7 +56,11 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
         "max_gaussians_seen": stats.max_count,
         "floaters_removed": stats.floaters_removed,
         "densify": stats.densify,
-        "depth_loss": "on" if stats.depth_loss_used else "off (no depth prior)" if depths is None else "off",
+        "depth_loss": "on"
+        if stats.depth_loss_used
+        else "off"
+        if fit_inputs.depth_given
+        else "off (no depth prior)",
         "iterations": stats.iterations,
         "poses": _poses_summary(aligned, refined=stats.pose_corrections is not None),
     }

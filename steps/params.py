@@ -220,6 +220,11 @@ class RepairParams(RepairSettings):
     compact_lpips: float = setting(
         0.0, ge=0, doc="compact model: LPIPS term weight (0: no gain measured, half the step's CPU)"
     )
+    consensus: bool = setting(
+        True,
+        doc="a second model (coarse + repair at a derived seed); each novel view's repair input is what both "
+        "render (docs/repair.md)",
+    )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
 
 

@@ -18,6 +18,11 @@ step (``compact.safetensors``; the pretrained one with ``use_lora: false`` or af
 repairs each novel view in one pass at ``compact_resolution``; the SDEdit strength t becomes a blend
 strength b ~ U(``strength_range``) with w = b (go_core.repair.repair). ``loss: sds`` needs sd15.
 
+With ``consensus`` (the default) the step first makes a second model of the scene, the coarse fit and this
+repair at ``derive_seed(seed, "consensus")`` (go_core.repair.second_model, each phase resumable under the
+checkpoint folder's ``consensus/``), and each novel view's repair input is then what both models render
+(go_core.repair.consensus); ``repair.json`` ``"consensus"`` names its seed and Gaussian counts.
+
 Outputs: ``repair.json``; with status ok also ``gaussians.npz`` and ``repair_preview.png`` (render | repaired
 for the last refresh's views).
 """
@@ -70,6 +75,32 @@ def _preview(path: Path, cache, size: int = 128) -> None:
     atomic_write(path, lambda tmp: Image.fromarray(sheet).save(tmp, format="PNG"))
 
 
+def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion, settings, lpips):
+    """The consensus's second model (go_core.repair.second_model): the coarse fit and the plain repair at a
+    derived seed, resumable phase by phase under the step's checkpoint folder."""
+    from go_core.coarse.fit import coarse_inputs
+    from go_core.repair.second_model import second_model
+
+    bars = {
+        "coarse": ResumedProgress(ctx, params.coarse.iterations, "consensus: second coarse 3DGS"),
+        "repair": ResumedProgress(ctx, settings.iterations, "consensus: second Gaussian repair"),
+    }
+    member = second_model(
+        coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth")),
+        params.coarse.scaled_schedule(),
+        params.coarse.checkpoint_every,
+        diffusion,
+        settings,
+        ctx.seed,
+        Path(ctx.checkpoint_dir) / "consensus",
+        lpips,
+        lambda phase, step, info: bars[phase].advance(step, loss=info.get("loss"), gaussians=info.get("n")),
+    )
+    for bar in bars.values():
+        bar.close()
+    return member
+
+
 def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
 
     from go_core.repair.data import training_views
@@ -87,6 +118,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
     _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     coarse = art.read_gaussians(inputs["coarse"])
+    member = _second_model(ctx, inputs, params, diffusion, settings, lpips) if params.consensus else None
     bar = ResumedProgress(ctx, settings.iterations, "Gaussian repair")
 
     result, summary, facts = repair_gaussians(
@@ -98,6 +130,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         checkpoint_dir=Path(ctx.checkpoint_dir),
         lpips=lpips,
         on_progress=lambda step, info: bar.advance(step, loss=info.get("loss"), gaussians=info.get("n")),
+        consensus=None if member is None else member.gaussians,
     )
     bar.close()
     out = Path(ctx.out_dir)
@@ -114,6 +147,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         "lpips_term": lpips_note,
         "device": device,
         "count": len(result),
+        "consensus": "off" if member is None else member.summary(),
         **summary,
     }
     art.write_json(out, art.REPAIR_INFO, info)
@@ -123,6 +157,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         lora=info["lora"],
         lpips_term=lpips_note,
         count=len(result),
+        consensus="off" if member is None else member.summary(),
         resumed_from=facts["resumed_from"],
         refreshes_made=facts["refreshes_made"],
         l_rep_last=facts["l_rep_log"][-3:],

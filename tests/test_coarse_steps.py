@@ -194,6 +194,7 @@ def test_a_collapsed_coarse_model_is_an_error_not_a_result(tmp_path, monkeypatch
     gaussians.npz."""
     from go_pipeline.steps import coarse, hull, mask
 
+    from go_core.coarse import fit
     from go_core.coarse.loop import TrainStats
     from go_core.errors import CollapsedModelError
 
@@ -208,7 +209,7 @@ def test_a_collapsed_coarse_model_is_an_error_not_a_result(tmp_path, monkeypatch
     def collapsing(init, views, config, **kw):
         return init, TrainStats(iterations=config.iterations, initial_count=len(init), final_count=3)
 
-    monkeypatch.setattr(coarse, "optimize", collapsing)
+    monkeypatch.setattr(fit, "optimize", collapsing)
     ctx = Ctx(tmp_path, "coarse")
     params = {"iterations": 12, "schedule_iterations": 0, "checkpoint_every": 0}
     with pytest.raises(CollapsedModelError, match=r"the model collapsed: 3 of 500 Gaussians left"):

@@ -29,6 +29,7 @@ REPAIR = {
     "resolution": 64,
     "checkpoint_every": 5,
     "lpips": 0.0,
+    "coarse": {"iterations": 20, "checkpoint_every": 8},  # the consensus's second coarse fit
 }
 
 
@@ -222,3 +223,95 @@ def test_ablations_no_finetune_and_no_repair(upstream, tmp_path):
     info = json.loads((ctx.out_dir / "repair.json").read_text())
     assert info["status"] == "skipped" and "no repair" in info["reason"]
     assert not (ctx.out_dir / "gaussians.npz").exists()
+
+
+class _Killed(RuntimeError):
+    pass
+
+
+def _gaussians_bytes(folder) -> bytes:
+    return (folder / "gaussians.npz").read_bytes()
+
+
+def test_consensus_second_model_is_the_library_chain_at_a_derived_seed(upstream, tmp_path):
+    """repair.consensus: the second model is fit_coarse + repair_gaussians at derive_seed(seed, "consensus")
+    (recomputed here from the library functions), and the repaired model differs from the plain repair."""
+    from go_pipeline.steps import repair
+
+    from go_core import artifacts as art
+    from go_core.coarse.fit import coarse_inputs, fit_coarse
+    from go_core.seeding import derive_seed
+
+    _, dirs, weights = upstream
+    tune_dir = _tune(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0}).out_dir
+    ctx = FakeCtx(tmp_path, "repair")
+    params = step_params(repair.__name__, REPAIR)
+    repair.run(ctx, {**dirs, "tune": tune_dir}, params)
+    info = json.loads((ctx.out_dir / "repair.json").read_text())
+    seed_b = derive_seed(0, "consensus")
+    assert info["consensus"]["seed"] == seed_b != 0
+
+    fitted, _, _ = fit_coarse(
+        coarse_inputs(dirs["scene"], dirs["mask"], dirs["hull"]), params.coarse.scaled_schedule(), seed_b
+    )
+    phase = ctx.checkpoint_dir / "consensus"
+    assert torch.equal(art.read_gaussians(phase / "coarse").means, fitted.means)
+    assert info["consensus"]["coarse_gaussians"] == len(fitted)
+    assert info["consensus"]["gaussians"] == len(art.read_gaussians(phase / "repaired"))
+
+    plain = FakeCtx(tmp_path, "repair_plain")
+    repair.run(
+        plain, {**dirs, "tune": tune_dir}, step_params(repair.__name__, {**REPAIR, "consensus": False})
+    )
+    assert json.loads((plain.out_dir / "repair.json").read_text())["consensus"] == "off"
+    assert not (plain.checkpoint_dir / "consensus").exists()
+    ours, theirs = art.read_gaussians(ctx.out_dir), art.read_gaussians(plain.out_dir)
+    assert len(ours) != len(theirs) or not torch.equal(ours.means, theirs.means)
+
+
+@pytest.mark.parametrize("phase", ["coarse", "repair"])
+def test_consensus_killed_in_a_phase_resumes_bit_identically(upstream, tmp_path, monkeypatch, phase):
+    """A run killed inside the second model's coarse fit or repair resumes at that phase's checkpoint (a
+    finished coarse phase is not fitted again) and writes the same bytes as an uninterrupted run."""
+    from go_pipeline.steps import repair
+
+    from go_core.repair import second_model
+
+    _, dirs, weights = upstream
+    tune_dir = _tune(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0}).out_dir
+    inputs, params = {**dirs, "tune": tune_dir}, step_params(repair.__name__, REPAIR)
+    whole = FakeCtx(tmp_path / "whole", "repair")
+    repair.run(whole, inputs, params)
+
+    real = {"coarse": second_model.fit_coarse, "repair": second_model.repair_gaussians}[phase]
+    kill_at = {"coarse": 12, "repair": 7}[phase]  # past a checkpoint (every 8 / every 5 steps)
+
+    def killed(*args, **kw):
+        progress = args[4] if phase == "coarse" else args[7]
+
+        def stop(step, info):
+            if step == kill_at:
+                raise _Killed(phase)
+            progress(step, info)
+
+        args = (*args[:4], stop) if phase == "coarse" else (*args[:7], stop)
+        return real(*args, **kw)
+
+    name = {"coarse": "fit_coarse", "repair": "repair_gaussians"}[phase]
+    monkeypatch.setattr(second_model, name, killed)
+    ctx = FakeCtx(tmp_path / "killed", "repair")
+    with pytest.raises(_Killed):
+        repair.run(ctx, inputs, params)
+    assert not (ctx.out_dir / "gaussians.npz").exists()
+    monkeypatch.setattr(second_model, name, real)
+    genuine_fit, resumed = second_model.fit_coarse, []
+
+    def spy(*args, **kw):
+        out = genuine_fit(*args, **kw)
+        resumed.append(out[1].resumed_from)
+        return out
+
+    monkeypatch.setattr(second_model, "fit_coarse", spy)
+    repair.run(ctx, inputs, params)
+    assert resumed == ([8] if phase == "coarse" else [])  # a finished coarse phase is not fitted again
+    assert _gaussians_bytes(ctx.out_dir) == _gaussians_bytes(whole.out_dir)
