@@ -23,6 +23,7 @@ REPAIR = {
     "compact_resolution": 64,
     "checkpoint_every": 5,
     "lpips": 0.0,
+    "consensus": False,  # the second model's phases are tested in test_repair_steps.py
 }
 COMPACT = {"repair_model": "compact"}
 
