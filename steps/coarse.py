@@ -29,6 +29,11 @@ def _poses_summary(aligned: bool, refined: bool) -> str:
     return "aligned, refined" if refined else "aligned, not refined"
 
 
+def _depth_loss_summary(used: bool, given: bool) -> str:
+    """``coarse.json`` "depth_loss": "on", "off", or "off (no depth prior)" when the depth step made none."""
+    return "on" if used else "off" if given else "off (no depth prior)"
+
+
 def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
     t0 = time.process_time()
     fit_inputs = coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth"))
@@ -56,11 +61,7 @@ def run(ctx, inputs: dict[str, Path], params: CoarseParams) -> None:
         "max_gaussians_seen": stats.max_count,
         "floaters_removed": stats.floaters_removed,
         "densify": stats.densify,
-        "depth_loss": "on"
-        if stats.depth_loss_used
-        else "off"
-        if fit_inputs.depth_given
-        else "off (no depth prior)",
+        "depth_loss": _depth_loss_summary(stats.depth_loss_used, fit_inputs.depth_given),
         "iterations": stats.iterations,
         "poses": _poses_summary(aligned, refined=stats.pose_corrections is not None),
     }

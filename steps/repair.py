@@ -157,7 +157,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         lora=info["lora"],
         lpips_term=lpips_note,
         count=len(result),
-        consensus="off" if member is None else member.summary(),
+        consensus=info["consensus"],
         resumed_from=facts["resumed_from"],
         refreshes_made=facts["refreshes_made"],
         l_rep_last=facts["l_rep_log"][-3:],

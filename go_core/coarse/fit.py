@@ -28,7 +28,11 @@ class CoarseInputs:
     init: Gaussians
     views: list[TrainView]
     aligned: bool
-    depth_given: bool
+
+    @property
+    def depth_given(self) -> bool:
+        """Whether the views carry the depth step's priors (one per training view, else none)."""
+        return any(v.depth is not None for v in self.views)
 
 
 def coarse_inputs(
@@ -45,9 +49,7 @@ def coarse_inputs(
         TrainView.from_arrays(c, v.image, m, depths[i] if depths is not None else None)
         for i, (v, c, m) in enumerate(zip(scene.train, cameras, masks, strict=True))
     ]
-    return CoarseInputs(
-        art.read_gaussians(hull_dir), views, art.cameras_aligned(hull_dir), depths is not None
-    )
+    return CoarseInputs(art.read_gaussians(hull_dir), views, art.cameras_aligned(hull_dir))
 
 
 def fit_coarse(
