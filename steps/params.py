@@ -225,6 +225,9 @@ class RepairParams(RepairSettings):
         doc="a second model (coarse + repair at a derived seed); each novel view's repair input is what both "
         "render (docs/repair.md)",
     )
+    consensus_member: Literal["repaired", "coarse"] = setting(
+        "repaired", doc="consensus: the second model is its coarse fit repaired, or the coarse fit alone"
+    )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
 
 

@@ -95,6 +95,7 @@ def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion,
         Path(ctx.checkpoint_dir) / "consensus",
         lpips,
         lambda phase, step, info: bars[phase].advance(step, loss=info.get("loss"), gaussians=info.get("n")),
+        repaired=params.consensus_member == "repaired",
     )
     for bar in bars.values():
         bar.close()

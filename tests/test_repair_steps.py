@@ -268,6 +268,18 @@ def test_consensus_second_model_is_the_library_chain_at_a_derived_seed(upstream,
     ours, theirs = art.read_gaussians(ctx.out_dir), art.read_gaussians(plain.out_dir)
     assert len(ours) != len(theirs) or not torch.equal(ours.means, theirs.means)
 
+    coarse_only = FakeCtx(tmp_path, "repair_coarse_member")
+    repair.run(
+        coarse_only,
+        {**dirs, "tune": tune_dir},
+        step_params(repair.__name__, {**REPAIR, "consensus_member": "coarse"}),
+    )
+    member = json.loads((coarse_only.out_dir / "repair.json").read_text())["consensus"]
+    assert member == {**info["consensus"], "member": "coarse", "gaussians": len(fitted)}
+    assert not (coarse_only.checkpoint_dir / "consensus" / "repaired").exists()
+    other = art.read_gaussians(coarse_only.out_dir)
+    assert len(other) != len(ours) or not torch.equal(other.means, ours.means)
+
 
 @pytest.mark.parametrize("phase", ["coarse", "repair"])
 def test_consensus_killed_in_a_phase_resumes_bit_identically(upstream, tmp_path, monkeypatch, phase):

@@ -35,9 +35,15 @@ class SecondModel:
     gaussians: Gaussians
     seed: int
     coarse_count: int
+    repaired: bool = True
 
     def summary(self) -> dict:
-        return {"seed": self.seed, "coarse_gaussians": self.coarse_count, "gaussians": len(self.gaussians)}
+        return {
+            "seed": self.seed,
+            "member": "repaired" if self.repaired else "coarse",
+            "coarse_gaussians": self.coarse_count,
+            "gaussians": len(self.gaussians),
+        }
 
 
 def _coarse_phase(
@@ -69,17 +75,21 @@ def second_model(
     checkpoint_dir: Path,
     lpips: LpipsFn | None = None,
     on_progress: Callable[[str, int, dict], None] | None = None,
+    repaired: bool = True,
 ) -> SecondModel:
     """The second model at ``derive_seed(seed, SEED_TAG)``: a coarse fit of ``inputs`` with
-    ``coarse_config``, then the plain repair with ``diffusion`` and ``settings`` at the cameras that fit
-    used (without the depth priors, as the repair step's views are). ``on_progress(phase, step, info)``
-    with phase "coarse" or "repair"."""
+    ``coarse_config``, then (``repaired``) the plain repair with ``diffusion`` and ``settings`` at the
+    cameras that fit used (without the depth priors, as the repair step's views are); without
+    ``repaired`` the coarse fit is the second model. ``on_progress(phase, step, info)`` with phase
+    "coarse" or "repair"."""
     seed_b = derive_seed(int(seed), SEED_TAG)
     checkpoint_dir = Path(checkpoint_dir)
     coarse_dir = _coarse_phase(
         checkpoint_dir / "coarse", inputs, coarse_config, seed_b, coarse_checkpoint_every, on_progress
     )
     coarse = art.read_gaussians(coarse_dir)
+    if not repaired:
+        return SecondModel(coarse, seed_b, len(coarse), repaired=False)
     done = checkpoint_dir / "repaired"
     if not art.GAUSSIANS.path(done).is_file():
         cameras = art.read_fitted_cameras(coarse_dir, [v.camera for v in inputs.views])
