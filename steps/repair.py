@@ -21,7 +21,8 @@ strength b ~ U(``strength_range``) with w = b (go_core.repair.repair). ``loss: s
 With ``consensus`` (the default) the step first makes a second model of the scene, the coarse fit and this
 repair at ``derive_seed(seed, "consensus")`` (go_core.repair.second_model, each phase resumable under the
 checkpoint folder's ``consensus/``), and each novel view's repair input is then what both models render
-(go_core.repair.consensus); ``repair.json`` ``"consensus"`` names its seed and Gaussian counts.
+(go_core.repair.consensus); ``repair.json`` ``"consensus"`` names its seed, member and Gaussian counts.
+``consensus_member: coarse`` skips the second model's repair (its coarse fit is the second model).
 
 Outputs: ``repair.json``; with status ok also ``gaussians.npz`` and ``repair_preview.png`` (render | repaired
 for the last refresh's views).
@@ -76,15 +77,16 @@ def _preview(path: Path, cache, size: int = 128) -> None:
 
 
 def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion, settings, lpips):
-    """The consensus's second model (go_core.repair.second_model): the coarse fit and the plain repair at a
-    derived seed, resumable phase by phase under the step's checkpoint folder."""
+    """The consensus's second model (go_core.repair.second_model): the coarse fit and (consensus_member
+    repaired) the plain repair at a derived seed, resumable phase by phase under the step's checkpoint
+    folder."""
     from go_core.coarse.fit import coarse_inputs
     from go_core.repair.second_model import second_model
 
-    bars = {
-        "coarse": ResumedProgress(ctx, params.coarse.iterations, "consensus: second coarse 3DGS"),
-        "repair": ResumedProgress(ctx, settings.iterations, "consensus: second Gaussian repair"),
-    }
+    repaired = params.consensus_member == "repaired"
+    bars = {"coarse": ResumedProgress(ctx, params.coarse.iterations, "consensus: second coarse 3DGS")}
+    if repaired:
+        bars["repair"] = ResumedProgress(ctx, settings.iterations, "consensus: second Gaussian repair")
     member = second_model(
         coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth")),
         params.coarse.scaled_schedule(),
@@ -95,7 +97,7 @@ def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion,
         Path(ctx.checkpoint_dir) / "consensus",
         lpips,
         lambda phase, step, info: bars[phase].advance(step, loss=info.get("loss"), gaussians=info.get("n")),
-        repaired=params.consensus_member == "repaired",
+        repaired=repaired,
     )
     for bar in bars.values():
         bar.close()
