@@ -23,7 +23,7 @@ from typing import Literal
 from go_core.coarse.settings import Backend, CoarseConfig
 from go_core.config import setting
 from go_core.mesh.settings import MeshSettings
-from go_core.repair.settings import LooSettings, RepairSettings
+from go_core.repair.settings import ConsensusMember, LooSettings, RepairSettings
 
 Precision = Literal["auto", "bf16", "fp16", "fp32"]
 ExportFormat = Literal["ply", "spz", "splat", "compressed_ply"]
@@ -225,7 +225,7 @@ class RepairParams(RepairSettings):
         doc="a second model (coarse + repair at a derived seed); each novel view's repair input is what both "
         "render (docs/repair.md)",
     )
-    consensus_member: Literal["repaired", "coarse"] = setting(
+    consensus_member: ConsensusMember = setting(
         "repaired", doc="consensus: the second model is its coarse fit repaired, or the coarse fit alone"
     )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")

@@ -83,9 +83,8 @@ def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion,
     from go_core.coarse.fit import coarse_inputs
     from go_core.repair.second_model import second_model
 
-    repaired = params.consensus_member == "repaired"
     bars = {"coarse": ResumedProgress(ctx, params.coarse.iterations, "consensus: second coarse 3DGS")}
-    if repaired:
+    if params.consensus_member == "repaired":
         bars["repair"] = ResumedProgress(ctx, settings.iterations, "consensus: second Gaussian repair")
     member = second_model(
         coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth")),
@@ -97,7 +96,7 @@ def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion,
         Path(ctx.checkpoint_dir) / "consensus",
         lpips,
         lambda phase, step, info: bars[phase].advance(step, loss=info.get("loss"), gaussians=info.get("n")),
-        repaired=repaired,
+        member=params.consensus_member,
     )
     for bar in bars.values():
         bar.close()

@@ -22,7 +22,7 @@ from go_core.gaussians import Gaussians
 from go_core.io.checkpoint import CheckpointSpec
 from go_core.repair.loss import LpipsFn
 from go_core.repair.repair import repair_gaussians
-from go_core.repair.settings import RepairSettings
+from go_core.repair.settings import ConsensusMember, RepairSettings
 from go_core.seeding import derive_seed
 
 SEED_TAG = "consensus"  # derive_seed(run seed, SEED_TAG): the second model's seed
@@ -35,12 +35,12 @@ class SecondModel:
     gaussians: Gaussians
     seed: int
     coarse_count: int
-    repaired: bool = True
+    member: ConsensusMember = "repaired"
 
     def summary(self) -> dict:
         return {
             "seed": self.seed,
-            "member": "repaired" if self.repaired else "coarse",
+            "member": self.member,
             "coarse_gaussians": self.coarse_count,
             "gaussians": len(self.gaussians),
         }
@@ -75,12 +75,12 @@ def second_model(
     checkpoint_dir: Path,
     lpips: LpipsFn | None = None,
     on_progress: Callable[[str, int, dict], None] | None = None,
-    repaired: bool = True,
+    member: ConsensusMember = "repaired",
 ) -> SecondModel:
     """The second model at ``derive_seed(seed, SEED_TAG)``: a coarse fit of ``inputs`` with
-    ``coarse_config``, then (``repaired``) the plain repair with ``diffusion`` and ``settings`` at the
-    cameras that fit used (without the depth priors, as the repair step's views are); without
-    ``repaired`` the coarse fit is the second model. ``on_progress(phase, step, info)`` with phase
+    ``coarse_config``, then (``member`` "repaired") the plain repair with ``diffusion`` and ``settings``
+    at the cameras that fit used (without the depth priors, as the repair step's views are); with
+    ``member`` "coarse" the coarse fit is the second model. ``on_progress(phase, step, info)`` with phase
     "coarse" or "repair"."""
     seed_b = derive_seed(int(seed), SEED_TAG)
     checkpoint_dir = Path(checkpoint_dir)
@@ -88,8 +88,8 @@ def second_model(
         checkpoint_dir / "coarse", inputs, coarse_config, seed_b, coarse_checkpoint_every, on_progress
     )
     coarse = art.read_gaussians(coarse_dir)
-    if not repaired:
-        return SecondModel(coarse, seed_b, len(coarse), repaired=False)
+    if member == "coarse":
+        return SecondModel(coarse, seed_b, len(coarse), member)
     done = checkpoint_dir / "repaired"
     if not art.GAUSSIANS.path(done).is_file():
         cameras = art.read_fitted_cameras(coarse_dir, [v.camera for v in inputs.views])

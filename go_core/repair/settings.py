@@ -10,6 +10,10 @@ from typing import Literal
 from go_core.coarse.settings import Backend, CoarseConfig
 from go_core.config import setting
 
+# the repair consensus's second model: its coarse fit repaired, or the coarse fit alone
+# (go_core.repair.second_model)
+ConsensusMember = Literal["repaired", "coarse"]
+
 
 @dataclass
 class LooSettings:
