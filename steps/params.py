@@ -228,6 +228,11 @@ class RepairParams(RepairSettings):
     consensus_member: ConsensusMember = setting(
         "repaired", doc="consensus: the second model is its coarse fit repaired, or the coarse fit alone"
     )
+    consensus_restorer: str = setting(
+        "",
+        doc="consensus: the restorer of the second model's repair: '' the run's own (tuned), or a compact "
+        "model's name, not tuned (e.g. go-repair-prior-4)",
+    )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
 
 

@@ -76,18 +76,17 @@ def _preview(path: Path, cache, size: int = 128) -> None:
     atomic_write(path, lambda tmp: Image.fromarray(sheet).save(tmp, format="PNG"))
 
 
-def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion, settings, lpips):
-    """The consensus's second model (go_core.repair.second_model): the coarse fit and (consensus_member
-    repaired) the plain repair at a derived seed, resumable phase by phase under the step's checkpoint
-    folder."""
-    from go_core.coarse.fit import coarse_inputs
+def _second_model(ctx, scene_inputs, params: RepairParams, diffusion, settings, lpips):
+    """The consensus's second model (go_core.repair.second_model) of ``scene_inputs`` (the coarse stage's
+    inputs, go_core.coarse.fit.CoarseInputs): the coarse fit and (consensus_member repaired) the plain repair
+    at a derived seed, resumable phase by phase under the step's checkpoint folder."""
     from go_core.repair.second_model import second_model
 
     bars = {"coarse": ResumedProgress(ctx, params.coarse.iterations, "consensus: second coarse 3DGS")}
     if params.consensus_member == "repaired":
         bars["repair"] = ResumedProgress(ctx, settings.iterations, "consensus: second Gaussian repair")
     member = second_model(
-        coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth")),
+        scene_inputs,
         params.coarse.scaled_schedule(),
         params.coarse.checkpoint_every,
         diffusion,
@@ -103,9 +102,32 @@ def _second_model(ctx, inputs: dict[str, Path], params: RepairParams, diffusion,
     return member
 
 
-def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
+def _consensus_record(member, params: RepairParams) -> dict:
+    """repair.json's ``consensus``: the second model's seed, member and counts, and its restorer."""
+    return {**member.summary(), "restorer": params.consensus_restorer or "own"}
 
-    from go_core.repair.data import training_views
+
+def _consensus_restorer(params: RepairParams, repair_model: str, own, device: str):
+    """The engine that repairs the second model: the run's own (``own``, tuned) or, with
+    ``consensus_restorer``, that compact model as shipped (a repair prior: its alpha and reference inputs
+    come with it)."""
+    name = params.consensus_restorer
+    if not name:
+        return own
+    if repair_model != "compact":
+        raise GoError(
+            f"repair.consensus_restorer {name!r} needs the compact repair model; the run's is "
+            f"{repair_model!r}"
+        )
+    from go_core.compact.engine import CompactRepair
+    from go_core.compact.restorer import load_restorer
+
+    return CompactRepair(load_restorer(name), device)  # missing or corrupt weights: one clear error
+
+
+def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
+    from go_core.coarse.fit import coarse_inputs
+    from go_core.repair.data import repair_views
     from go_core.repair.repair import repair_gaussians
 
     mode = params.mode
@@ -118,9 +140,14 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     # RepairSettings with the coarse step's settings (params.coarse), as the model needs them
     diffusion, lora_note, settings = repair_model_named(repair_model).load(inputs, tune_info, params, device)
     lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
-    _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
+    # the scene read once: the coarse stage's inputs, for this repair's views and the second model's fit
+    scene_inputs = coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth"))
+    views = repair_views(scene_inputs.views, inputs["coarse"])
     coarse = art.read_gaussians(inputs["coarse"])
-    member = _second_model(ctx, inputs, params, diffusion, settings, lpips) if params.consensus else None
+    member = None
+    if params.consensus:
+        restorer = _consensus_restorer(params, repair_model, diffusion, device)
+        member = _second_model(ctx, scene_inputs, params, restorer, settings, lpips)
     bar = ResumedProgress(ctx, settings.iterations, "Gaussian repair")
 
     result, summary, facts = repair_gaussians(
@@ -149,7 +176,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         "lpips_term": lpips_note,
         "device": device,
         "count": len(result),
-        "consensus": "off" if member is None else member.summary(),
+        "consensus": "off" if member is None else _consensus_record(member, params),
         **summary,
     }
     art.write_json(out, art.REPAIR_INFO, info)

@@ -504,6 +504,28 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
     _assert_same_gaussians(full.out_dir, resumed.out_dir)
 
 
+def test_consensus_restorer_repairs_the_second_model_with_the_named_prior(
+    upstream, tmp_path, tiny_cache, tiny_prior
+):
+    """repair.consensus_restorer: the second model's repair uses that compact model as shipped, not the
+    run's own: the same second coarse fit, another repaired second model, recorded in repair.json."""
+    from go_core import artifacts as art
+
+    _, dirs = upstream
+    tune_ctx = _tune(tmp_path / "t", dirs, {**LORA, "finetune": False})
+    params = {**REPAIR, "consensus": True, "coarse": {"iterations": 20, "checkpoint_every": 8}}
+    own = _repair(tmp_path / "own", dirs, tune_ctx.out_dir, params)
+    named = {**params, "consensus_restorer": "tiny-prior"}
+    prior = _repair(tmp_path / "prior", dirs, tune_ctx.out_dir, named)
+    records = [json.loads((c.out_dir / "repair.json").read_text())["consensus"] for c in (own, prior)]
+    assert [r["restorer"] for r in records] == ["own", "tiny-prior"]
+    assert records[0]["coarse_gaussians"] == records[1]["coarse_gaussians"]
+    second = [art.read_gaussians(c.checkpoint_dir / "consensus" / phase) for c in (own, prior) for phase in
+              ("coarse", "repaired")]  # fmt: skip
+    assert torch.equal(second[0].means, second[2].means)  # the same second coarse fit
+    assert len(second[1]) != len(second[3]) or not torch.equal(second[1].means, second[3].means)
+
+
 def test_inside_region_loss_against_hand_computed_values():
     """tune.compact_region inside: the RGB L1 only where the clean mask is (weighted by it), the alpha L1
     everywhere, in the proportions of the whole-view loss; refused for a 3-channel restorer."""

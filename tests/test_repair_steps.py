@@ -240,6 +240,7 @@ def test_consensus_second_model_is_the_library_chain_at_a_derived_seed(upstream,
 
     from go_core import artifacts as art
     from go_core.coarse.fit import coarse_inputs, fit_coarse
+    from go_core.errors import GoError
     from go_core.seeding import derive_seed
 
     _, dirs, weights = upstream
@@ -279,6 +280,45 @@ def test_consensus_second_model_is_the_library_chain_at_a_derived_seed(upstream,
     assert not (coarse_only.checkpoint_dir / "consensus" / "repaired").exists()
     other = art.read_gaussians(coarse_only.out_dir)
     assert len(other) != len(ours) or not torch.equal(other.means, ours.means)
+
+    with pytest.raises(GoError, match="consensus_restorer.*compact"):  # a compact model for an sd15 run
+        repair.run(
+            FakeCtx(tmp_path, "repair_prior_member"),
+            {**dirs, "tune": tune_dir},
+            step_params(repair.__name__, {**REPAIR, "consensus_restorer": "go-repair-prior-4"}),
+        )
+
+
+def test_repair_views_are_the_training_views_at_the_coarse_models_cameras(upstream, tmp_path):
+    """The repair step reads the scene once (the coarse stage's inputs) for its views and the second model's
+    fit: those views equal training_views' (the same images, masks and fitted cameras, no depth), and a
+    coarse model fitted at moved cameras (its cameras.json) moves them."""
+    import shutil
+    from dataclasses import replace
+
+    from go_core import artifacts as art
+    from go_core.coarse.fit import coarse_inputs
+    from go_core.repair.data import repair_views, training_views
+
+    _, dirs, _ = upstream
+    ours = repair_views(coarse_inputs(dirs["scene"], dirs["mask"], dirs["hull"]).views, dirs["coarse"])
+    _, theirs = training_views(dirs["scene"], dirs["mask"], dirs["coarse"])
+    assert len(ours) == len(theirs) > 0
+    for a, b in zip(ours, theirs, strict=True):
+        assert a.depth is None and b.depth is None
+        assert torch.equal(a.image, b.image) and torch.equal(a.mask, b.mask)
+        assert a.camera.name == b.camera.name
+        assert np.array_equal(a.camera.K, b.camera.K)
+        assert np.array_equal(a.camera.world_to_cam, b.camera.world_to_cam)
+
+    moved_dir = tmp_path / "coarse_moved"
+    shutil.copytree(dirs["coarse"], moved_dir)
+    moved = [replace(v.camera, world_to_cam=v.camera.world_to_cam + np.eye(4, k=3) * 0.01) for v in theirs]
+    assert not np.allclose(moved[0].world_to_cam, theirs[0].camera.world_to_cam)
+    art.write_cameras(moved_dir, moved)
+    shifted = repair_views(coarse_inputs(dirs["scene"], dirs["mask"], dirs["hull"]).views, moved_dir)
+    for view, cam in zip(shifted, moved, strict=True):
+        assert np.allclose(view.camera.world_to_cam, cam.world_to_cam)
 
 
 @pytest.mark.parametrize("phase", ["coarse", "repair"])

@@ -2,12 +2,15 @@
 
 * training views: the ``scene`` artifact's training views with the ``mask`` step's masks
   (``masks.npz``; falls back to the scene's own masks), as ``go_core.coarse.loop.TrainView``;
+* the repair's views: the coarse stage's own inputs at the cameras a coarse model was fitted with;
 * images: float32 torch [H, W, 3] in [0, 1]; composited on white for the repair model (paper: white bg).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -16,6 +19,9 @@ from go_core.camera import Camera
 from go_core.errors import SceneError
 from go_core.gaussians import Gaussians
 from go_core.io.images import composite, to_uint8  # noqa: F401  (to_uint8 re-exported)
+
+if TYPE_CHECKING:
+    from go_core.coarse.loop import TrainView
 
 
 def training_views(
@@ -45,6 +51,16 @@ def training_views(
             raise SceneError(f"mask of {v.name!r} is {mask.shape}, image {v.image.shape[:2]}", mask_dir)
         views.append(TrainView.from_arrays(cam, v.image, mask))
     return scene, views
+
+
+def repair_views(views: list[TrainView], coarse_dir: str | Path) -> list[TrainView]:
+    """The repair's views: ``views`` (the coarse stage's inputs, go_core.coarse.loop.TrainView) at the cameras
+    the coarse model in ``coarse_dir`` was fitted with (its ``cameras.json``; refined with
+    coarse.refine_poses), without the depth priors, which the repair does not use."""
+    from go_core import artifacts as art
+
+    cameras = art.read_fitted_cameras(coarse_dir, [v.camera for v in views])
+    return [replace(v, camera=c, depth=None) for v, c in zip(views, cameras, strict=True)]
 
 
 def on_white(image: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:

@@ -11,7 +11,7 @@ newest checkpoint: the result is bit-identical to an uninterrupted run's.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from go_core import artifacts as art
@@ -20,6 +20,7 @@ from go_core.coarse.settings import CoarseConfig
 from go_core.diffusion.sampler import RepairDiffusion
 from go_core.gaussians import Gaussians
 from go_core.io.checkpoint import CheckpointSpec
+from go_core.repair.data import repair_views
 from go_core.repair.loss import LpipsFn
 from go_core.repair.repair import repair_gaussians
 from go_core.repair.settings import ConsensusMember, RepairSettings
@@ -92,8 +93,7 @@ def second_model(
         return SecondModel(coarse, seed_b, len(coarse), member)
     done = checkpoint_dir / "repaired"
     if not art.GAUSSIANS.path(done).is_file():
-        cameras = art.read_fitted_cameras(coarse_dir, [v.camera for v in inputs.views])
-        views = [replace(v, camera=c, depth=None) for v, c in zip(inputs.views, cameras, strict=True)]
+        views = repair_views(inputs.views, coarse_dir)
         progress = None if on_progress is None else (lambda step, info: on_progress("repair", step, info))
         repaired, _, _ = repair_gaussians(
             coarse, views, diffusion, settings, seed_b, checkpoint_dir / "repair", lpips, progress
