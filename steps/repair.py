@@ -107,13 +107,13 @@ def _consensus_record(member, params: RepairParams) -> dict:
     return {**member.summary(), "restorer": params.consensus_restorer or "own"}
 
 
-def _consensus_restorer(params: RepairParams, repair_model: str, own, device: str):
-    """The engine that repairs the second model: the run's own (``own``, tuned) or, with
-    ``consensus_restorer``, that compact model as shipped (a repair prior: its alpha and reference inputs
-    come with it)."""
+def _consensus_restorer(params: RepairParams, repair_model: str, device: str):
+    """The engine that repairs the second model when ``consensus_restorer`` names one: that compact model as
+    shipped (a repair prior: its alpha and reference inputs come with it); None for the run's own (tuned).
+    Resolved before the run's own model is loaded, so a wrong choice fails before any heavy load."""
     name = params.consensus_restorer
-    if not name:
-        return own
+    if not (params.consensus and name):
+        return None
     if repair_model != "compact":
         raise GoError(
             f"repair.consensus_restorer {name!r} needs the compact repair model; the run's is "
@@ -137,6 +137,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     tune_info = art.read_json(inputs["tune"], art.TUNE_INFO)  # a skipped tune step skips this one (registry)
     device = str(ctx.device)
     repair_model = str(tune_info.get("repair_model", "sd15"))
+    second_restorer = _consensus_restorer(params, repair_model, device)
     # RepairSettings with the coarse step's settings (params.coarse), as the model needs them
     diffusion, lora_note, settings = repair_model_named(repair_model).load(inputs, tune_info, params, device)
     lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
@@ -146,7 +147,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     coarse = art.read_gaussians(inputs["coarse"])
     member = None
     if params.consensus:
-        restorer = _consensus_restorer(params, repair_model, diffusion, device)
+        restorer = diffusion if second_restorer is None else second_restorer
         member = _second_model(ctx, scene_inputs, params, restorer, settings, lpips)
     bar = ResumedProgress(ctx, settings.iterations, "Gaussian repair")
 
