@@ -233,6 +233,13 @@ class RepairParams(RepairSettings):
         doc="consensus: the restorer of the second model's repair: '' the run's own (tuned), or a compact "
         "model's name, not tuned (e.g. go-repair-prior-4)",
     )
+    consensus_models: int = setting(
+        2,
+        ge=2,
+        le=8,
+        doc="consensus: how many models agree (the run's and consensus_models - 1 more, each a coarse fit "
+        "and its repair at its own derived seed)",
+    )
     coarse: CoarseParams = setting(default_factory=CoarseParams, doc="filled with the coarse step's params")
 
 

@@ -22,6 +22,8 @@ With ``consensus`` (the default) the step first makes a second model of the scen
 repair at ``derive_seed(seed, "consensus")`` (go_core.repair.second_model, each phase resumable under the
 checkpoint folder's ``consensus/``), and each novel view's repair input is then what both models render
 (go_core.repair.consensus); ``repair.json`` ``"consensus"`` names its seed, member and Gaussian counts.
+``consensus_models`` above 2 adds further models the same way (seeds ``derive_seed(seed, "consensus-3")``,
+..., folders ``consensus-3/``, ...), and the input is what all of them render.
 ``consensus_member: coarse`` skips the second model's repair (its coarse fit is the second model).
 
 Outputs: ``repair.json``; with status ok also ``gaussians.npz`` and ``repair_preview.png`` (render | repaired
@@ -76,35 +78,48 @@ def _preview(path: Path, cache, size: int = 128) -> None:
     atomic_write(path, lambda tmp: Image.fromarray(sheet).save(tmp, format="PNG"))
 
 
-def _second_model(ctx, scene_inputs, params: RepairParams, diffusion, settings, lpips):
-    """The consensus's second model (go_core.repair.second_model) of ``scene_inputs`` (the coarse stage's
-    inputs, go_core.coarse.fit.CoarseInputs): the coarse fit and (consensus_member repaired) the plain repair
-    at a derived seed, resumable phase by phase under the step's checkpoint folder."""
-    from go_core.repair.second_model import second_model
+def _consensus_members(ctx, scene_inputs, params: RepairParams, diffusion, settings, lpips) -> list:
+    """The consensus's further models (go_core.repair.second_model), ``consensus_models`` - 1 of them, of
+    ``scene_inputs`` (the coarse stage's inputs, go_core.coarse.fit.CoarseInputs): each the coarse fit and
+    (consensus_member repaired) the plain repair at its own derived seed, resumable phase by phase under the
+    step's checkpoint folder (``consensus/``, ``consensus-3/``, ...)."""
+    from go_core.repair.second_model import member_tag, second_model
 
-    bars = {"coarse": ResumedProgress(ctx, params.coarse.iterations, "consensus: second coarse 3DGS")}
-    if params.consensus_member == "repaired":
-        bars["repair"] = ResumedProgress(ctx, settings.iterations, "consensus: second Gaussian repair")
-    member = second_model(
-        scene_inputs,
-        params.coarse.scaled_schedule(),
-        params.coarse.checkpoint_every,
-        diffusion,
-        settings,
-        ctx.seed,
-        Path(ctx.checkpoint_dir) / "consensus",
-        lpips,
-        lambda phase, step, info: bars[phase].advance(step, loss=info.get("loss"), gaussians=info.get("n")),
-        member=params.consensus_member,
-    )
-    for bar in bars.values():
-        bar.close()
-    return member
+    members = []
+    for number in range(2, params.consensus_models + 1):
+        name = "second" if number == 2 else f"model {number}'s"
+        bars = {"coarse": ResumedProgress(ctx, params.coarse.iterations, f"consensus: {name} coarse 3DGS")}
+        if params.consensus_member == "repaired":
+            bars["repair"] = ResumedProgress(ctx, settings.iterations, f"consensus: {name} Gaussian repair")
+        member = second_model(
+            scene_inputs,
+            params.coarse.scaled_schedule(),
+            params.coarse.checkpoint_every,
+            diffusion,
+            settings,
+            ctx.seed,
+            Path(ctx.checkpoint_dir) / member_tag(number),
+            lpips,
+            lambda phase, step, info, bars=bars: bars[phase].advance(
+                step, loss=info.get("loss"), gaussians=info.get("n")
+            ),
+            member=params.consensus_member,
+            number=number,
+        )
+        for bar in bars.values():
+            bar.close()
+        members.append(member)
+    return members
 
 
-def _consensus_record(member, params: RepairParams) -> dict:
-    """repair.json's ``consensus``: the second model's seed, member and counts, and its restorer."""
-    return {**member.summary(), "restorer": params.consensus_restorer or "own"}
+def _consensus_record(members: list, params: RepairParams) -> dict:
+    """repair.json's ``consensus``: the second model's seed, member and counts, its restorer, how many models
+    agree, and (more than two) the further models' seeds and counts."""
+    record = {**members[0].summary(), "restorer": params.consensus_restorer or "own"}
+    record["models"] = len(members) + 1
+    if len(members) > 1:
+        record["further"] = [m.summary() for m in members[1:]]
+    return record
 
 
 def _consensus_restorer(params: RepairParams, repair_model: str, device: str):
@@ -145,10 +160,10 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     scene_inputs = coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth"))
     views = repair_views(scene_inputs.views, inputs["coarse"])
     coarse = art.read_gaussians(inputs["coarse"])
-    member = None
+    members = []
     if params.consensus:
         restorer = diffusion if second_restorer is None else second_restorer
-        member = _second_model(ctx, scene_inputs, params, restorer, settings, lpips)
+        members = _consensus_members(ctx, scene_inputs, params, restorer, settings, lpips)
     bar = ResumedProgress(ctx, settings.iterations, "Gaussian repair")
 
     result, summary, facts = repair_gaussians(
@@ -160,7 +175,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         checkpoint_dir=Path(ctx.checkpoint_dir),
         lpips=lpips,
         on_progress=lambda step, info: bar.advance(step, loss=info.get("loss"), gaussians=info.get("n")),
-        consensus=None if member is None else member.gaussians,
+        consensus=[m.gaussians for m in members],
     )
     bar.close()
     out = Path(ctx.out_dir)
@@ -177,7 +192,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         "lpips_term": lpips_note,
         "device": device,
         "count": len(result),
-        "consensus": "off" if member is None else _consensus_record(member, params),
+        "consensus": _consensus_record(members, params) if members else "off",
         **summary,
     }
     art.write_json(out, art.REPAIR_INFO, info)

@@ -22,7 +22,8 @@ def test_agreed_render_against_hand_values():
     alpha_a = torch.tensor([1.0, 1.0, 0.5, 0.0])
     alpha_b = torch.tensor([1.0, 0.0, 0.25, 0.0])
     on_white = lambda c, a: c * a[:, None] + (1 - a[:, None])  # noqa: E731
-    rgb, alpha = agreed_render(on_white(colour_a, alpha_a), alpha_a, on_white(colour_b, alpha_b), alpha_b)
+    pair = [(on_white(colour_a, alpha_a), alpha_a), (on_white(colour_b, alpha_b), alpha_b)]
+    rgb, alpha = agreed_render(pair)
     assert alpha.tolist() == [1.0, 0.0, 0.25, 0.0]
     mixed = (np.array([0.2, 0.4, 0.6]) * 0.5 + np.array([0.6, 0.4, 0.2]) * 0.25) / 0.75
     expected = [[0.5, 0.0, 0.5], [1.0, 1.0, 1.0], list(mixed * 0.25 + 0.75), [1.0, 1.0, 1.0]]
@@ -32,11 +33,29 @@ def test_agreed_render_against_hand_values():
     )
 
 
+def test_three_renders_agree_on_the_least_alpha_and_the_alpha_weighted_colour():
+    """Three models: alpha is the smallest of the three, colour the mean weighted by each one's alpha (hand
+    values); a third render that agrees with the first two leaves their agreement as it was."""
+    colours = torch.tensor([[[0.9, 0.1, 0.1]], [[0.1, 0.9, 0.1]], [[0.1, 0.1, 0.9]]])  # [model, pixel, rgb]
+    alphas = torch.tensor([[0.8], [0.4], [0.2]])
+    renders = [(c * a[:, None] + (1 - a[:, None]), a) for c, a in zip(colours, alphas, strict=True)]
+    rgb, alpha = agreed_render(renders)
+    mixed = np.array([0.8, 0.4, 0.2]) @ colours[:, 0].double().numpy()
+    expected = mixed / 1.4 * 0.2 + 0.8
+    np.testing.assert_allclose(alpha.numpy(), [0.2], atol=1e-7)
+    np.testing.assert_allclose(rgb.numpy(), [expected], atol=1e-6)
+    two = agreed_render(renders[:2])
+    both = agreed_render([*renders[:2], renders[0]])  # a copy of the opaque one: alpha stays 0.4
+    torch.testing.assert_close(both[1], two[1])
+    with pytest.raises(ValueError, match="two or more"):
+        agreed_render(renders[:1])
+
+
 def test_a_model_agrees_with_itself():
     rgb = torch.rand(6, 5, 3)
     alpha = torch.rand(6, 5) * 0.9 + 0.1
     on_white = rgb * alpha[..., None] + (1 - alpha[..., None])
-    same, same_alpha = agreed_render(on_white, alpha, on_white, alpha)
+    same, same_alpha = agreed_render([(on_white, alpha)] * 3)
     torch.testing.assert_close(same, on_white, atol=1e-6, rtol=0)
     torch.testing.assert_close(same_alpha, alpha)
 
@@ -65,7 +84,7 @@ def test_cache_restores_what_both_models_render(other_z, white):
     settings = RepairSettings(views_per_arc=1, resolution=64)
     model = _blob(0.0)
     alone = RepairCache(arcs, _Identity(), settings, 0, None, 0).make(0, model)
-    agreed = RepairCache(arcs, _Identity(), settings, 0, None, 0, consensus=_blob(other_z)).make(0, model)
+    agreed = RepairCache(arcs, _Identity(), settings, 0, None, 0, consensus=[_blob(other_z)]).make(0, model)
     for a, b in zip(alone, agreed, strict=True):
         assert a.camera.name == b.camera.name
         if white:  # the second model is out of every view: nothing is agreed, the input is white

@@ -289,6 +289,46 @@ def test_consensus_second_model_is_the_library_chain_at_a_derived_seed(upstream,
         )
 
 
+def test_consensus_of_three_models_adds_a_third_at_its_own_seed(upstream, tmp_path):
+    """repair.consensus_models 3: the second model is the one of two models (same seed, same Gaussians), the
+    third is fit_coarse at derive_seed(seed, "consensus-3") under ``consensus-3/``, both are recorded, and
+    the result differs from the two models' repair."""
+    from go_pipeline.steps import repair
+
+    from go_core import artifacts as art
+    from go_core.coarse.fit import coarse_inputs, fit_coarse
+    from go_core.seeding import derive_seed
+
+    _, dirs, weights = upstream
+    tune_dir = _tune(tmp_path, dirs, {**weights, **LORA, "checkpoint_every": 0}).out_dir
+    runs = {}
+    for n in (2, 3):
+        ctx = FakeCtx(tmp_path, f"repair_{n}")
+        repair.run(
+            ctx, {**dirs, "tune": tune_dir}, step_params(repair.__name__, {**REPAIR, "consensus_models": n})
+        )
+        runs[n] = (ctx, json.loads((ctx.out_dir / "repair.json").read_text())["consensus"])
+    (two, record_2), (three, record_3) = runs[2], runs[3]
+    assert record_2["models"] == 2 and "further" not in record_2
+    assert record_3["models"] == 3 and {k: record_3[k] for k in record_2 if k != "models"} == {
+        k: v for k, v in record_2.items() if k != "models"
+    }
+    seed_c = derive_seed(0, "consensus-3")
+    assert record_3["further"][0]["seed"] == seed_c not in (0, record_2["seed"])
+    for phase in ("coarse", "repaired"):
+        assert _gaussians_bytes(three.checkpoint_dir / "consensus" / phase) == _gaussians_bytes(
+            two.checkpoint_dir / "consensus" / phase
+        )
+    params = step_params(repair.__name__, REPAIR)
+    fitted, _, _ = fit_coarse(
+        coarse_inputs(dirs["scene"], dirs["mask"], dirs["hull"]), params.coarse.scaled_schedule(), seed_c
+    )
+    third = three.checkpoint_dir / "consensus-3"
+    assert torch.equal(art.read_gaussians(third / "coarse").means, fitted.means)
+    assert record_3["further"][0]["gaussians"] == len(art.read_gaussians(third / "repaired"))
+    assert _gaussians_bytes(three.out_dir) != _gaussians_bytes(two.out_dir)
+
+
 def test_repair_views_are_the_training_views_at_the_coarse_models_cameras(upstream, tmp_path):
     """The repair step reads the scene once (the coarse stage's inputs) for its views and the second model's
     fit: those views equal training_views' (the same images, masks and fitted cameras, no depth), and a

@@ -19,13 +19,13 @@ replaces, as 1 − ᾱ_t is the fraction of signal SDEdit replaces by noise). λ
 schedule are unchanged. A repair prior (go_core.compact.prior, ``channels`` 4 or 8) also gets the render's
 alpha, and with 8 channels the nearest training view warped through the render's expected depth
 (go_core.compact.reference); its repaired alpha is kept with the view and ``alpha_weight`` · L1(alpha) joins
-the view's image loss (the mask target of issue 34). Given a second model of the scene (``consensus``), each
-novel view's repair input is what both models render (go_core.repair.consensus), not the render alone.
+the view's image loss (the mask target of issue 34). Given further models of the scene (``consensus``), each
+novel view's repair input is what all the models render (go_core.repair.consensus), not the render alone.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -89,11 +89,11 @@ class RepairCache:
         directory: Path | None,
         sh_degree: int,
         references=None,
-        consensus: Gaussians | None = None,
+        consensus: Sequence[Gaussians] = (),
     ) -> None:
         self.arcs = arcs
         self.references = references  # ReferenceViews for a prior with a reference input, else None
-        self.consensus = consensus  # a second model of the scene: restore what both render (consensus.py)
+        self.consensus = tuple(consensus)  # further models of the scene: restore what all render
         self.diffusion = diffusion
         self.settings = settings
         self.seed = int(seed)
@@ -170,11 +170,11 @@ class RepairCache:
             views = with_raised_twins(views, self.arcs.ellipse, s.lift_deg)
         for rv in views:
             rgb, alpha, depth = render_rgb_alpha_depth(g, rv.camera, s.backend, self.sh_degree)
-            if self.consensus is not None:
-                other_rgb, other_alpha, _ = render_rgb_alpha_depth(
-                    self.consensus, rv.camera, s.backend, self.consensus.sh_degree
-                )
-                rgb, alpha = agreed_render(rgb, alpha, other_rgb, other_alpha)
+            if self.consensus:
+                others = [
+                    render_rgb_alpha_depth(m, rv.camera, s.backend, m.sh_degree)[:2] for m in self.consensus
+                ]
+                rgb, alpha = agreed_render([(rgb, alpha), *others])
             frame = Frame.choose(rv.camera.height, rv.camera.width, alpha)
             base = hwc_to_bchw(rgb)
             reference = None
@@ -315,10 +315,11 @@ def repair_gaussians(
     checkpoint_dir: Path | None = None,
     lpips: LpipsFn | None = None,
     on_progress: Callable[[int, dict], None] | None = None,
-    consensus: Gaussians | None = None,
+    consensus: Sequence[Gaussians] = (),
 ) -> tuple[Gaussians, dict, dict]:
-    """Run the repair optimisation; returns (repaired Gaussians, summary, run facts). With ``consensus`` (a
-    second model of the scene) each novel view's repair input is what both models render (consensus.py).
+    """Run the repair optimisation; returns (repaired Gaussians, summary, run facts). With ``consensus``
+    (further models of the scene) each novel view's repair input is what all the models render
+    (consensus.py).
 
     The summary depends only on the inputs (identical after a resume); the run facts (resume point, refreshes
     computed in this process, L_rep log) describe this particular process."""

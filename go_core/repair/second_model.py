@@ -1,6 +1,7 @@
-"""The second model of the repair's consensus (issue 33): the coarse stage and the plain repair made again
-from the same inputs with a seed derived from the run's, so ``repair_gaussians(consensus=...)`` can restore
-what two independently fitted models both render (go_core.repair.consensus).
+"""The further models of the repair's consensus (issue 33): the coarse stage and the plain repair made again
+from the same inputs with a seed derived from the run's (one per model), so
+``repair_gaussians(consensus=...)`` can restore what independently fitted models all render
+(go_core.repair.consensus).
 
 Each phase keeps its result in its own folder under the caller's checkpoint folder (``coarse/``: Gaussians
 and the cameras they were fitted with, as the coarse step writes them; ``repaired/``: the final Gaussians),
@@ -27,6 +28,15 @@ from go_core.repair.settings import ConsensusMember, RepairSettings
 from go_core.seeding import derive_seed
 
 SEED_TAG = "consensus"  # derive_seed(run seed, SEED_TAG): the second model's seed
+
+
+def member_tag(number: int) -> str:
+    """The name of the consensus's model ``number`` (the run's own model is 1, the second model 2, ...): its
+    seed is ``derive_seed(run seed, member_tag(number))`` and the step keeps its phases in a folder of that
+    name ("consensus", "consensus-3", ...)."""
+    if number < 2:
+        raise ValueError(f"consensus model number {number}: the further models are 2, 3, ...")
+    return SEED_TAG if number == 2 else f"{SEED_TAG}-{number}"
 
 
 @dataclass(frozen=True)
@@ -77,13 +87,15 @@ def second_model(
     lpips: LpipsFn | None = None,
     on_progress: Callable[[str, int, dict], None] | None = None,
     member: ConsensusMember = "repaired",
+    number: int = 2,
 ) -> SecondModel:
-    """The second model at ``derive_seed(seed, SEED_TAG)``: a coarse fit of ``inputs`` with
+    """The consensus's model ``number`` (2: the second model) at ``derive_seed(seed, member_tag(number))``: a
+    coarse fit of ``inputs`` with
     ``coarse_config``, then (``member`` "repaired") the plain repair with ``diffusion`` and ``settings``
     at the cameras that fit used (without the depth priors, as the repair step's views are); with
     ``member`` "coarse" the coarse fit is the second model. ``on_progress(phase, step, info)`` with phase
     "coarse" or "repair"."""
-    seed_b = derive_seed(int(seed), SEED_TAG)
+    seed_b = derive_seed(int(seed), member_tag(number))
     checkpoint_dir = Path(checkpoint_dir)
     coarse_dir = _coarse_phase(
         checkpoint_dir / "coarse", inputs, coarse_config, seed_b, coarse_checkpoint_every, on_progress
@@ -102,4 +114,4 @@ def second_model(
     return SecondModel(art.read_gaussians(done), seed_b, len(coarse))
 
 
-__all__ = ["SEED_TAG", "SecondModel", "second_model"]
+__all__ = ["SEED_TAG", "SecondModel", "member_tag", "second_model"]
