@@ -163,16 +163,25 @@ class CompactModel:
     @staticmethod
     def _engine(inputs: dict[str, Path], tune_info: dict, use_lora: bool, device: str):
         """(CompactRepair, "fine-tuned" | "pretrained (no fine-tuning)") from the tune step's artifact."""
+        tuned = use_lora and tune_info.get("status") == "ok"
+        weights = Path(inputs["tune"]) / tune_info["tuned"] if tuned else None
+        engine = compact_engine(tune_info["compact"]["name"], device, weights)
+        return engine, "fine-tuned" if tuned else "pretrained (no fine-tuning)"
+
+
+def compact_engine(name: str, device: str, tuned: Path | None = None):
+    """The one-pass repair engine (go_core.compact.engine.CompactRepair) of the compact model ``name``: as
+    shipped, or with the tune step's fine-tuned weights ``tuned`` (a safetensors file). Missing or corrupt
+    weights: one clear error."""
+    from go_core.compact.engine import CompactRepair
+    from go_core.compact.restorer import load_restorer
+
+    restorer = load_restorer(name)
+    if tuned is not None:
         from safetensors.torch import load_file
 
-        from go_core.compact.engine import CompactRepair
-        from go_core.compact.restorer import load_restorer
-
-        restorer = load_restorer(tune_info["compact"]["name"])  # one clear error when absent/corrupt
-        tuned = use_lora and tune_info.get("status") == "ok"
-        if tuned:
-            restorer.load_tuned(load_file(str(Path(inputs["tune"]) / tune_info["tuned"])))
-        return CompactRepair(restorer, device), "fine-tuned" if tuned else "pretrained (no fine-tuning)"
+        restorer.load_tuned(load_file(str(tuned)))
+    return CompactRepair(restorer, device)
 
 
 class SD15Model:

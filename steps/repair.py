@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from go_pipeline.steps._common import ResumedProgress, write_skipped
-from go_pipeline.steps._repair_models import repair_model_named
+from go_pipeline.steps._repair_models import compact_engine, repair_model_named
 
 from go_core import artifacts as art
 from go_core.errors import GoError, first_line
@@ -134,10 +134,7 @@ def _consensus_restorer(params: RepairParams, repair_model: str, device: str):
             f"repair.consensus_restorer {name!r} needs the compact repair model; the run's is "
             f"{repair_model!r}"
         )
-    from go_core.compact.engine import CompactRepair
-    from go_core.compact.restorer import load_restorer
-
-    return CompactRepair(load_restorer(name), device)  # missing or corrupt weights: one clear error
+    return compact_engine(name, device)  # as shipped; missing or corrupt weights: one clear error
 
 
 def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
