@@ -9,12 +9,13 @@ ControlNet-tile + CLIP with LoRA, the paper's).
 
 from __future__ import annotations
 
+import json
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 from go_pipeline.steps._common import ResumedProgress
-from go_pipeline.steps.weights import compact_info, weight_paths
+from go_pipeline.steps.weights import compact_info, compact_model_info, weight_paths
 
 from go_core import artifacts as art
 from go_core.errors import GoError
@@ -107,6 +108,10 @@ class CompactModel:
                 f"tune.compact_resolution must be a multiple of {model.scale}, got {settings.resolution}"
             )
         _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
+        choice = restorer_choice(ctx, inputs, params, info["name"], views)
+        if choice is not None and choice["chosen"] != info["name"]:
+            _write_prior_chosen(ctx, choice)
+            return
         source = _pair_source(inputs, params, views)
         draw, loo = source.draw, LooPairs(inputs["loo"])
         held = [loo.get(i) for i in range(len(loo))]
@@ -137,6 +142,7 @@ class CompactModel:
             "settings": asdict(settings),
             "loo_pairs_l1": {"before": round(before, 6), "after": round(after, 6), "pairs": len(loo_pairs)},
             **summary,
+            **({"choice": choice} if choice is not None else {}),
         }
         art.write_json(ctx.out_dir, art.TUNE_INFO, out)
         log = summary["loss_log"]
@@ -167,6 +173,92 @@ class CompactModel:
         weights = Path(inputs["tune"]) / tune_info["tuned"] if tuned else None
         engine = compact_engine(tune_info["compact"]["name"], device, weights)
         return engine, "fine-tuned" if tuned else "pretrained (no fine-tuning)"
+
+
+def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str, views) -> dict | None:
+    """tune.json's ``choice`` between the run's restorer ``name`` tuned and ``params.prior_choice`` as
+    shipped, on the held-out leave-one-out folds (go_core.compact.choice); None when there is nothing to
+    choose (no prior named, or the run's restorer is a prior itself). Each fold's scores are kept in the
+    checkpoint folder, so a resumed step does not tune that fold again."""
+    from go_core.compact.choice import FoldScore, choice_record
+    from go_core.compact.prior import SHIPPED
+    from go_core.io.atomic import atomic_write_json
+
+    if not params.prior_choice or name in SHIPPED:
+        return None
+    folder = Path(ctx.checkpoint_dir) / "restorer_choice"
+    folds = []
+    for view in _loo_views(inputs):
+        done = folder / f"fold_{view}.json"
+        if done.is_file():
+            folds.append(FoldScore(**json.loads(done.read_text(encoding="utf-8"))))
+            continue
+        folds.append(_fold_score(ctx, inputs, params, name, views, view))
+        atomic_write_json(done, asdict(folds[-1]))
+    record = choice_record(folds, name, params.prior_choice)
+    ctx.record(
+        restorer_chosen=record["chosen"], tuned_psnr=record["tuned_psnr"], prior_psnr=record["prior_psnr"]
+    )
+    return record
+
+
+def _loo_views(inputs: dict[str, Path]) -> list[int]:
+    """The training views that have leave-one-out pairs."""
+    from go_core.repair.pairs import LooPairs
+
+    loo = LooPairs(inputs["loo"])
+    return sorted({loo.get(i).view for i in range(len(loo))})
+
+
+def _fold_score(ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int):
+    """One fold: ``name`` tuned as the tune step tunes it on every pair not of ``view`` (at a seed of its
+    own), and the prior as shipped, each scored on ``view``'s leave-one-out pairs."""
+    from go_core.compact.choice import FoldScore, restored_psnr
+    from go_core.compact.restorer import load_restorer
+    from go_core.compact.tuning import tune_compact
+    from go_core.repair.pairs import LooPairs, pair_tensors, training_view_references, with_reference
+    from go_core.seeding import derive_seed
+
+    settings = compact_tune_settings(params)
+    loo = LooPairs(inputs["loo"])
+    held = [loo.get(i) for i in range(len(loo)) if loo.get(i).view == view]
+    source = _pair_source(inputs, params, views)
+    prior = load_restorer(params.prior_choice)
+    if prior.channels == 8:  # the prior's reference input: the nearest other training view, warped
+        refs = training_view_references(views, source.coarse, params.backend)
+        held_prior = [with_reference(p, refs) for p in held]
+    else:
+        held_prior = held
+    prior_pairs = [pair_tensors(p, settings.resolution, prior.channels) for p in held_prior]
+    prior_psnr = restored_psnr(prior, prior_pairs)
+
+    def draw(rng, gen):
+        while True:
+            pair = source.draw(rng, gen)
+            if pair.view != view:
+                return pair
+
+    model = load_restorer(name)
+    tune_compact(model, draw, source.schedule, settings, derive_seed(ctx.seed, "restorer_choice", view))
+    tuned_psnr = restored_psnr(model, [pair_tensors(p, settings.resolution, model.channels) for p in held])
+    return FoldScore(view, len(held), tuned_psnr, prior_psnr)
+
+
+def _write_prior_chosen(ctx, choice: dict) -> None:
+    """tune.json when the prior won the held-out folds: the prior as shipped repairs (status pretrained)."""
+    reason = "the repair prior as shipped restored the held-out leave-one-out views better than the tuned one"
+    art.write_json(
+        ctx.out_dir,
+        art.TUNE_INFO,
+        {
+            "repair_model": "compact",
+            "compact": compact_model_info(choice["prior"]),
+            "status": "pretrained",
+            "reason": reason,
+            "choice": choice,
+        },
+    )
+    ctx.record(status="pretrained", repair_model="compact", reason=reason)
 
 
 def compact_engine(name: str, device: str, tuned: Path | None = None):

@@ -204,6 +204,11 @@ class TuneParams:
         "all", doc="compact: RGB loss over the whole view, or inside the clean view's mask (a repair prior)"
     )
     compact_resolution: int = setting(256, ge=1, doc="compact: pair side (a multiple of the model's scale)")
+    prior_choice: str = setting(
+        "",
+        doc="compact: a repair prior (e.g. go-repair-prior-4) that repairs as shipped instead of the tuned "
+        "restorer where it restores the held-out leave-one-out views better ('' never; docs/repair_prior.md)",
+    )
     backend: Backend = "auto"
 
 

@@ -19,7 +19,11 @@ Outputs: ``tune.json``; with status ok also ``lora.safetensors`` (only the LoRA 
 With the compact repair model (``weights.repair_model``): a full fine-tune of the pretrained restorer on the
 same Algorithm-1 pairs (go_core.compact.tuning: L1, Adam ``compact_lr``, ``compact_steps`` steps at
 ``compact_resolution``), checkpointed as safetensors; writes ``compact.safetensors`` (the tuned network)
-and records the loss on the leave-one-out pairs before and after tuning.
+and records the loss on the leave-one-out pairs before and after tuning. With ``prior_choice`` naming a
+repair prior, that restorer is first tuned once per training view on the other views' pairs and scored,
+with the prior as shipped, on the held-out view's leave-one-out pairs; where the prior scores higher it
+repairs untuned (``status: "pretrained"``, tune.json ``choice``; steps/_repair_models.py
+``restorer_choice``).
 """
 
 from __future__ import annotations

@@ -32,7 +32,9 @@ if TYPE_CHECKING:
     from go_pipeline.steps.params import WeightsParams
 
 
-def _compact_info(name: str) -> dict:
+def compact_model_info(name: str) -> dict:
+    """weights.json's record of the compact model ``name`` (name, file, sha256, scale, source); missing or
+    corrupt weights: one MissingWeightsError naming the file."""
     import hashlib
 
     from go_core.compact.prior import SHIPPED, shipped_prior_path
@@ -67,7 +69,7 @@ def run(ctx, inputs: dict[str, Path], params: WeightsParams) -> None:
     if choice != "compact" and problems and (paths.sd15 or paths.controlnet):
         raise MissingWeightsError("repair model weights: " + " | ".join(problems))
     if choice == "compact" or (choice == "auto" and problems):
-        compact = _compact_info(params.compact_model)
+        compact = compact_model_info(params.compact_model)
         why = "chosen" if choice == "compact" else "auto: no SD1.5 + ControlNet weights configured"
         info = {"status": "ok", "reason": "", "repair_model": "compact", "compact": compact,
                 "paths": paths.describe(), "choice": why}  # fmt: skip

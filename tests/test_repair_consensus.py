@@ -92,3 +92,27 @@ def test_cache_restores_what_both_models_render(other_z, white):
             torch.testing.assert_close(b.image, torch.ones_like(b.image), atol=1e-3, rtol=0)
         else:  # the same model: the input is the model's own render
             torch.testing.assert_close(b.image, a.image, atol=1e-5, rtol=0)
+
+
+def test_agreed_alpha_is_the_mask_target_only_with_a_weight():
+    """With a restorer that gives no alpha, ``alpha_weight`` > 0 keeps the models' agreed alpha with each
+    view as its mask target (the second model's own render, made here apart, decides it); weight 0 or no
+    consensus keeps none, as before."""
+    from go_core.repair.data import render_rgb_alpha_depth
+
+    train = ring_cameras([0, 90, 180, 270])
+    arcs = RepairArcs.from_cameras(train, keep=0.8)
+    model, half, far = _blob(0.0), _blob(0.15), _blob(40.0)
+    weighted = RepairSettings(views_per_arc=1, resolution=64, alpha_weight=1.0)
+    plain = RepairSettings(views_per_arc=1, resolution=64)
+    views = RepairCache(arcs, _Identity(), weighted, 0, None, 0, consensus=[half]).make(0, model)
+    for v in views:
+        own = render_rgb_alpha_depth(model, v.camera, weighted.backend, 0)[1]
+        other = render_rgb_alpha_depth(half, v.camera, weighted.backend, 0)[1]
+        torch.testing.assert_close(v.alpha, torch.minimum(own, other))
+        assert (own - v.alpha).max() > 0.1  # the shifted blob trims the model's own silhouette
+    gone = RepairCache(arcs, _Identity(), weighted, 0, None, 0, consensus=[far]).make(0, model)
+    assert all(float(v.alpha.max()) < 1e-3 for v in gone)  # nothing agreed: transparent everywhere
+    for settings, consensus in ((plain, [half]), (weighted, [])):
+        none = RepairCache(arcs, _Identity(), settings, 0, None, 0, consensus=consensus).make(0, model)
+        assert all(v.alpha is None for v in none)

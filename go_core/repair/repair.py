@@ -20,7 +20,9 @@ schedule are unchanged. A repair prior (go_core.compact.prior, ``channels`` 4 or
 alpha, and with 8 channels the nearest training view warped through the render's expected depth
 (go_core.compact.reference); its repaired alpha is kept with the view and ``alpha_weight`` · L1(alpha) joins
 the view's image loss (the mask target of issue 34). Given further models of the scene (``consensus``), each
-novel view's repair input is what all the models render (go_core.repair.consensus), not the render alone.
+novel view's repair input is what all the models render (go_core.repair.consensus), not the render alone;
+with a restorer that gives no alpha, ``alpha_weight`` > 0 makes that agreed alpha the view's mask target, so
+what the models do not share becomes transparent rather than white.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ class CachedView:
     w: float
     lam: float
     arc: int
-    alpha: torch.Tensor | None = None  # a repair prior's repaired alpha [H, W] (the mask target), else None
+    alpha: torch.Tensor | None = None  # the mask target [H, W] (mask_target), else None
 
 
 def _cam_to_dict(c: Camera) -> dict:
@@ -194,10 +196,15 @@ class RepairCache:
                     w,
                     distance_weight(rv.camera.center, self.refs, self.d_max),
                     rv.arc,
-                    full[..., 3].contiguous() if with_alpha else None,
+                    full[..., 3].contiguous() if with_alpha else self.agreed_alpha_target(alpha),
                 )
             )
         return out
+
+    def agreed_alpha_target(self, alpha: torch.Tensor) -> torch.Tensor | None:
+        """The mask target of a view whose restorer gives no alpha: under the consensus, with
+        ``alpha_weight`` > 0, what all the models render (``alpha``, their agreed alpha); else none."""
+        return alpha.contiguous() if self.consensus and self.settings.alpha_weight > 0 else None
 
 
 def _references(engine, views: list):
@@ -268,7 +275,7 @@ class _RepairLoss:
         cv = self.cache.views[int(pick)]
         rgb, alpha = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
         img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, s.lpips)
-        if cv.alpha is not None and s.alpha_weight > 0:  # the prior's repaired alpha as a mask target
+        if cv.alpha is not None and s.alpha_weight > 0:  # the repaired or agreed alpha as a mask target
             img = img + s.alpha_weight * (alpha - cv.alpha).abs().mean()
         loss = self.decay(step) * cv.w * cv.lam * img
         if step % 100 == 0:

@@ -70,7 +70,10 @@ class RepairSettings:
     l2: float = setting(1.0, ge=0)
     lpips: float = setting(1.0, ge=0, doc="LPIPS term (off, and said so, without LPIPS weights)")
     alpha_weight: float = setting(
-        0.0, ge=0, doc="repair prior: L1 of the render's alpha to its repaired alpha (docs/repair_prior.md)"
+        0.0,
+        ge=0,
+        doc="L1 of the render's alpha to a repair prior's repaired alpha (docs/repair_prior.md), or with a "
+        "restorer that gives none, under the consensus, to the models' agreed alpha (docs/repair.md)",
     )
     means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")

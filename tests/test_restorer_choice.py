@@ -1,0 +1,116 @@
+"""tune.prior_choice: the tuned restorer against a repair prior as shipped, on held-out leave-one-out
+folds."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from go_core.compact.choice import FoldScore, choice_record, choose_prior, psnr, restored_psnr
+from tests import test_compact
+from tests.test_compact import LORA, REPAIR, _repair, _tune
+
+# the compact tests' fixtures: the tiny upstream steps, the tiny restorer cache and the tiny shipped prior
+upstream, tiny_cache, tiny_prior = test_compact.upstream, test_compact.tiny_cache, test_compact.tiny_prior
+
+CHOICE = {**LORA, "prior_choice": "tiny-prior"}
+TUNED = "realesr-animevideov3-x4"  # the tiny stand-in of tests/_tiny_repair.py
+
+
+class _Shift(torch.nn.Module):
+    """Adds a constant to its input (a stand-in restorer with a known error)."""
+
+    def __init__(self, shift: float) -> None:
+        super().__init__()
+        self.shift = shift
+
+    def forward(self, x):
+        return x + self.shift
+
+
+def test_restored_psnr_against_hand_values():
+    clean = torch.full((1, 3, 8, 8), 0.5)
+    degraded = torch.cat([clean - 0.1, torch.ones(1, 1, 8, 8)], 1)  # a prior's alpha channel is left out
+    assert restored_psnr(_Shift(0.0), [(degraded, clean)]) == pytest.approx(20.0, abs=1e-4)  # MSE 0.01
+    assert restored_psnr(_Shift(0.1), [(degraded, clean)]) == pytest.approx(120.0)  # exact: floored at 1e-12
+    over = torch.cat([torch.full((1, 3, 8, 8), 0.95), torch.ones(1, 1, 8, 8)], 1)
+    assert restored_psnr(_Shift(0.2), [(over, torch.ones(1, 3, 8, 8))]) == pytest.approx(
+        120.0
+    )  # clamped at 1
+    assert psnr(torch.zeros(4), torch.full((4,), 0.5)) == pytest.approx(-10 * np.log10(0.25))
+    with pytest.raises(ValueError, match="no held-out pairs"):
+        restored_psnr(_Shift(0.0), [])
+
+
+def test_the_prior_is_chosen_only_when_its_mean_is_higher():
+    folds = [FoldScore(0, 2, 24.0, 26.0), FoldScore(1, 2, 25.0, 22.0)]  # means 24.5 (tuned) and 24.0
+    assert not choose_prior(folds)
+    assert choose_prior([*folds, FoldScore(2, 2, 20.0, 23.0)])  # 23.0 against 23.33
+    assert not choose_prior([FoldScore(0, 1, 20.0, 20.0)])  # a tie keeps the tuned restorer
+    record = choice_record(folds, "tuned-one", "prior-one")
+    assert record["chosen"] == "tuned-one" and record["tuned_psnr"] == 24.5 and record["prior_psnr"] == 24.0
+    assert [f["view"] for f in record["folds"]] == [0, 1]
+
+
+def test_tune_step_scores_every_held_out_fold_and_resumes_them(
+    upstream,
+    tmp_path,
+    tiny_cache,
+    tiny_prior,
+    monkeypatch,
+):
+    """Each fold: the tuned restorer and the prior on that view's leave-one-out pairs (the prior's score
+    recomputed here); a rerun reads the folds back and only the final tuning runs again."""
+    from go_core.compact import tuning
+    from go_core.compact.restorer import load_restorer
+    from go_core.repair.pairs import LooPairs, pair_tensors
+
+    _, dirs = upstream
+    ctx = _tune(tmp_path, dirs, CHOICE)
+    choice = json.loads((ctx.out_dir / "tune.json").read_text())["choice"]
+    loo = LooPairs(dirs["loo"])
+    views = sorted({loo.get(i).view for i in range(len(loo))})
+    assert [f["view"] for f in choice["folds"]] == views and len(views) >= 2
+    prior = load_restorer("tiny-prior")
+    first = [pair_tensors(loo.get(i), LORA["compact_resolution"], prior.channels) for i in range(len(loo))
+             if loo.get(i).view == views[0]]  # fmt: skip
+    assert choice["folds"][0]["prior_psnr"] == pytest.approx(restored_psnr(prior, first), abs=1e-4)
+    assert choice["folds"][0]["tuned_psnr"] != choice["folds"][1]["tuned_psnr"]
+    assert choice["chosen"] == ("tiny-prior" if choice["prior_psnr"] > choice["tuned_psnr"] else TUNED)
+
+    calls = []
+    real = tuning.tune_compact
+    monkeypatch.setattr(tuning, "tune_compact", lambda *a, **k: calls.append(1) or real(*a, **k))
+    again = _tune(tmp_path, dirs, CHOICE)
+    assert json.loads((again.out_dir / "tune.json").read_text())["choice"] == choice
+    assert len(calls) == (choice["chosen"] == TUNED)  # the folds came from the checkpoint folder
+
+
+@pytest.mark.parametrize("prior_wins", [True, False])
+def test_the_chosen_restorer_is_the_one_the_repair_uses(
+    upstream,
+    tmp_path,
+    tiny_cache,
+    tiny_prior,
+    monkeypatch,
+    prior_wins,
+):
+    from go_pipeline.steps import _repair_models
+
+    scores = (20.0, 21.0) if prior_wins else (21.0, 20.0)
+    monkeypatch.setattr(_repair_models, "_fold_score", lambda *a: FoldScore(a[-1], 1, *scores))
+    _, dirs = upstream
+    tuned = _tune(tmp_path / "t", dirs, CHOICE)
+    info = json.loads((tuned.out_dir / "tune.json").read_text())
+    assert info["choice"]["chosen"] == ("tiny-prior" if prior_wins else TUNED)
+    assert info["status"] == ("pretrained" if prior_wins else "ok")
+    assert info["compact"]["name"] == info["choice"]["chosen"]
+    assert (tuned.out_dir / "compact.safetensors").is_file() != prior_wins
+    repaired = json.loads(
+        (_repair(tmp_path / "r", dirs, tuned.out_dir, REPAIR).out_dir / "repair.json").read_text()
+    )
+    assert repaired["compact_model"] == info["choice"]["chosen"]
+    assert repaired["lora"] == ("pretrained (no fine-tuning)" if prior_wins else "fine-tuned")
