@@ -186,14 +186,19 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
 
     if not params.prior_choice or name in SHIPPED:
         return None
+    from go_core.repair.pairs import LooPairs
+
+    loo = LooPairs(inputs["loo"])
+    pairs = [loo.get(i) for i in range(len(loo))]  # read once for every fold
     folder = Path(ctx.checkpoint_dir) / "restorer_choice"
     folds = []
-    for view in _loo_views(inputs):
+    for view in sorted({p.view for p in pairs}):
         done = folder / f"fold_{view}.json"
         if done.is_file():
             folds.append(FoldScore(**json.loads(done.read_text(encoding="utf-8"))))
             continue
-        folds.append(_fold_score(ctx, inputs, params, name, views, view))
+        held = [p for p in pairs if p.view == view]
+        folds.append(_fold_score(ctx, inputs, params, name, views, view, held))
         atomic_write_json(done, asdict(folds[-1]))
     record = choice_record(folds, name, params.prior_choice)
     ctx.record(
@@ -202,26 +207,16 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
     return record
 
 
-def _loo_views(inputs: dict[str, Path]) -> list[int]:
-    """The training views that have leave-one-out pairs."""
-    from go_core.repair.pairs import LooPairs
-
-    loo = LooPairs(inputs["loo"])
-    return sorted({loo.get(i).view for i in range(len(loo))})
-
-
-def _fold_score(ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int):
+def _fold_score(ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int, held: list):
     """One fold: ``name`` tuned as the tune step tunes it on every pair not of ``view`` (at a seed of its
-    own), and the prior as shipped, each scored on ``view``'s leave-one-out pairs."""
+    own), and the prior as shipped, each scored on ``held``, ``view``'s leave-one-out pairs."""
     from go_core.compact.choice import FoldScore, restored_psnr
     from go_core.compact.restorer import load_restorer
     from go_core.compact.tuning import tune_compact
-    from go_core.repair.pairs import LooPairs, pair_tensors, training_view_references, with_reference
+    from go_core.repair.pairs import pair_tensors, training_view_references, with_reference
     from go_core.seeding import derive_seed
 
     settings = compact_tune_settings(params)
-    loo = LooPairs(inputs["loo"])
-    held = [loo.get(i) for i in range(len(loo)) if loo.get(i).view == view]
     source = _pair_source(inputs, params, views)
     prior = load_restorer(params.prior_choice)
     if prior.channels == 8:  # the prior's reference input: the nearest other training view, warped

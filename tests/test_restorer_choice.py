@@ -101,7 +101,7 @@ def test_the_chosen_restorer_is_the_one_the_repair_uses(
     from go_pipeline.steps import _repair_models
 
     scores = (20.0, 21.0) if prior_wins else (21.0, 20.0)
-    monkeypatch.setattr(_repair_models, "_fold_score", lambda *a: FoldScore(a[-1], 1, *scores))
+    monkeypatch.setattr(_repair_models, "_fold_score", lambda *a: FoldScore(a[-2], 1, *scores))
     _, dirs = upstream
     tuned = _tune(tmp_path / "t", dirs, CHOICE)
     info = json.loads((tuned.out_dir / "tune.json").read_text())

@@ -62,7 +62,7 @@ class CachedView:
     w: float
     lam: float
     arc: int
-    alpha: torch.Tensor | None = None  # the mask target [H, W] (mask_target), else None
+    alpha: torch.Tensor | None = None  # mask target [H, W]: repaired alpha, or agreed_alpha_target's
 
 
 def _cam_to_dict(c: Camera) -> dict:
