@@ -190,16 +190,18 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
 
     loo = LooPairs(inputs["loo"])
     pairs = [loo.get(i) for i in range(len(loo))]  # read once for every fold
+    held = {view: [p for p in pairs if p.view == view] for view in sorted({p.view for p in pairs})}
     folder = Path(ctx.checkpoint_dir) / "restorer_choice"
-    folds = []
-    for view in sorted({p.view for p in pairs}):
-        done = folder / f"fold_{view}.json"
-        if done.is_file():
-            folds.append(FoldScore(**json.loads(done.read_text(encoding="utf-8"))))
-            continue
-        held = [p for p in pairs if p.view == view]
-        folds.append(_fold_score(ctx, inputs, params, name, views, view, held))
-        atomic_write_json(done, asdict(folds[-1]))
+    folds = [FoldScore(**json.loads(f.read_text(encoding="utf-8"))) for f in folder.glob("fold_*.json")]
+    done = {f.view for f in folds}
+    if len(done) < len(held):
+        prior_psnr = _prior_psnr(inputs, params, views, held)
+        for view in held:
+            if view not in done:
+                tuned_psnr = _fold_tuned_psnr(ctx, inputs, params, name, views, view, held[view])
+                folds.append(FoldScore(view, len(held[view]), tuned_psnr, prior_psnr[view]))
+                atomic_write_json(folder / f"fold_{view}.json", asdict(folds[-1]))
+    folds.sort(key=lambda f: f.view)
     record = choice_record(folds, name, params.prior_choice)
     ctx.record(
         restorer_chosen=record["chosen"], tuned_psnr=record["tuned_psnr"], prior_psnr=record["prior_psnr"]
@@ -207,25 +209,41 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
     return record
 
 
-def _fold_score(ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int, held: list):
+def _prior_psnr(
+    inputs: dict[str, Path], params: TuneParams, views, held: dict[int, list]
+) -> dict[int, float]:
+    """The prior as shipped, scored on each training view's leave-one-out pairs, with the reference input
+    where the prior takes one (the nearest other training view, warped through the coarse model): computed
+    once for every fold, as neither depends on the fold's tuning."""
+    from go_core.compact.choice import restored_psnr
+    from go_core.compact.restorer import load_restorer
+    from go_core.repair.pairs import pair_tensors, training_view_references, with_reference
+
+    resolution = compact_tune_settings(params).resolution
+    prior = load_restorer(params.prior_choice)
+    refs = None
+    if prior.channels == 8:
+        refs = training_view_references(views, _pair_source(inputs, params, views).coarse, params.backend)
+    out = {}
+    for view, pairs in held.items():
+        pairs = [with_reference(p, refs) for p in pairs] if refs is not None else pairs
+        out[view] = restored_psnr(prior, [pair_tensors(p, resolution, prior.channels) for p in pairs])
+    return out
+
+
+def _fold_tuned_psnr(
+    ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int, held: list
+):
     """One fold: ``name`` tuned as the tune step tunes it on every pair not of ``view`` (at a seed of its
-    own), and the prior as shipped, each scored on ``held``, ``view``'s leave-one-out pairs."""
-    from go_core.compact.choice import FoldScore, restored_psnr
+    own), its mean PSNR on ``held``, ``view``'s leave-one-out pairs."""
+    from go_core.compact.choice import restored_psnr
     from go_core.compact.restorer import load_restorer
     from go_core.compact.tuning import tune_compact
-    from go_core.repair.pairs import pair_tensors, training_view_references, with_reference
+    from go_core.repair.pairs import pair_tensors
     from go_core.seeding import derive_seed
 
     settings = compact_tune_settings(params)
     source = _pair_source(inputs, params, views)
-    prior = load_restorer(params.prior_choice)
-    if prior.channels == 8:  # the prior's reference input: the nearest other training view, warped
-        refs = training_view_references(views, source.coarse, params.backend)
-        held_prior = [with_reference(p, refs) for p in held]
-    else:
-        held_prior = held
-    prior_pairs = [pair_tensors(p, settings.resolution, prior.channels) for p in held_prior]
-    prior_psnr = restored_psnr(prior, prior_pairs)
 
     def draw(rng, gen):
         while True:
@@ -235,8 +253,7 @@ def _fold_score(ctx, inputs: dict[str, Path], params: TuneParams, name: str, vie
 
     model = load_restorer(name)
     tune_compact(model, draw, source.schedule, settings, derive_seed(ctx.seed, "restorer_choice", view))
-    tuned_psnr = restored_psnr(model, [pair_tensors(p, settings.resolution, model.channels) for p in held])
-    return FoldScore(view, len(held), tuned_psnr, prior_psnr)
+    return restored_psnr(model, [pair_tensors(p, settings.resolution, model.channels) for p in held])
 
 
 def _write_prior_chosen(ctx, choice: dict) -> None:

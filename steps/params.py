@@ -205,9 +205,9 @@ class TuneParams:
     )
     compact_resolution: int = setting(256, ge=1, doc="compact: pair side (a multiple of the model's scale)")
     prior_choice: str = setting(
-        "",
-        doc="compact: a repair prior (e.g. go-repair-prior-4) that repairs as shipped instead of the tuned "
-        "restorer where it restores the held-out leave-one-out views better ('' never; docs/repair_prior.md)",
+        "go-repair-prior-4",
+        doc="compact: a repair prior that repairs as shipped instead of the tuned restorer where it restores "
+        "the held-out leave-one-out views better ('' never; docs/real_captures.md, docs/repair_prior.md)",
     )
     backend: Backend = "auto"
 

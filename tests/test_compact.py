@@ -14,7 +14,14 @@ from tests._tiny_repair import FakeCtx, one_thread, run_weights_step, synthetic_
 
 EXAMPLE_IMAGE = Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket" / "train"
 LOO = {"phase1_iterations": 12, "phase2_iterations": 6, "renders": 2, "checkpoint_every": 0}
-LORA = {"compact_steps": 6, "compact_resolution": 64, "checkpoint_every": 2, "compact_lr": 1e-3}
+# the tuning itself: no per-scene choice of a prior (tests/test_restorer_choice.py tests that)
+LORA = {
+    "compact_steps": 6,
+    "compact_resolution": 64,
+    "checkpoint_every": 2,
+    "compact_lr": 1e-3,
+    "prior_choice": "",
+}
 REPAIR = {
     "iterations": 10,
     "repair_iterations": 8,

@@ -101,7 +101,8 @@ def test_the_chosen_restorer_is_the_one_the_repair_uses(
     from go_pipeline.steps import _repair_models
 
     scores = (20.0, 21.0) if prior_wins else (21.0, 20.0)
-    monkeypatch.setattr(_repair_models, "_fold_score", lambda *a: FoldScore(a[-2], 1, *scores))
+    monkeypatch.setattr(_repair_models, "_fold_tuned_psnr", lambda *a: scores[0])
+    monkeypatch.setattr(_repair_models, "_prior_psnr", lambda *a: dict.fromkeys(a[-1], scores[1]))
     _, dirs = upstream
     tuned = _tune(tmp_path / "t", dirs, CHOICE)
     info = json.loads((tuned.out_dir / "tune.json").read_text())
@@ -114,3 +115,12 @@ def test_the_chosen_restorer_is_the_one_the_repair_uses(
     )
     assert repaired["compact_model"] == info["choice"]["chosen"]
     assert repaired["lora"] == ("pretrained (no fine-tuning)" if prior_wins else "fine-tuned")
+
+
+def test_the_default_prior_choice_names_a_prior_shipped_in_the_package():
+    from go_pipeline.steps.params import TuneParams
+
+    from go_core.compact.prior import SHIPPED, SHIPPED_DIR
+
+    name = TuneParams().prior_choice
+    assert name in SHIPPED and (SHIPPED_DIR / f"{name}.safetensors").is_file()
