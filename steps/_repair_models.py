@@ -233,7 +233,7 @@ def _prior_psnr(
 
 def _fold_tuned_psnr(
     ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int, held: list
-):
+) -> float:
     """One fold: ``name`` tuned as the tune step tunes it on every pair not of ``view`` (at a seed of its
     own), its mean PSNR on ``held``, ``view``'s leave-one-out pairs."""
     from go_core.compact.choice import restored_psnr

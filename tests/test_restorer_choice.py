@@ -89,6 +89,31 @@ def test_tune_step_scores_every_held_out_fold_and_resumes_them(
     assert len(calls) == (choice["chosen"] == TUNED)  # the folds came from the checkpoint folder
 
 
+def test_a_step_killed_between_folds_tunes_only_the_folds_left(
+    upstream,
+    tmp_path,
+    tiny_cache,
+    tiny_prior,
+    monkeypatch,
+):
+    """Folds whose scores are in the checkpoint folder are not tuned again; the others are, and the
+    choice is the uninterrupted one."""
+    from go_core.compact import tuning
+
+    _, dirs = upstream
+    whole = json.loads((_tune(tmp_path / "whole", dirs, CHOICE).out_dir / "tune.json").read_text())["choice"]
+    ctx = _tune(tmp_path / "killed", dirs, CHOICE)
+    folder = ctx.checkpoint_dir / "restorer_choice"
+    (folder / "fold_0.json").unlink()  # as if killed after the other folds
+    (ctx.out_dir / "tune.json").unlink()
+    calls = []
+    real = tuning.tune_compact
+    monkeypatch.setattr(tuning, "tune_compact", lambda *a, **k: calls.append(1) or real(*a, **k))
+    again = _tune(tmp_path / "killed", dirs, CHOICE)
+    assert json.loads((again.out_dir / "tune.json").read_text())["choice"] == whole
+    assert len(calls) == 1 + (whole["chosen"] == TUNED)  # fold 0, then the final tuning if it is needed
+
+
 @pytest.mark.parametrize("prior_wins", [True, False])
 def test_the_chosen_restorer_is_the_one_the_repair_uses(
     upstream,
