@@ -198,7 +198,12 @@ def test_run_example_end_to_end(tmp_path, toy):
     assert "everything is up to date" in plain.stderr and "running" not in plain.stderr
     # findable results: the model and its metrics, the paths, the next command
     assert "\nresult: the repair model" in "\n" + done.stdout and "test views: PSNR " in done.stdout
-    assert "compact:realesr-animevideov3-x4 (fine-tuned)" in done.stdout  # the repair model that ran
+    # the repair model that ran: the one the tune step chose on the held-out folds (tune.prior_choice)
+    (tune_json,) = (scene / ".go" / "artifacts" / "tune").glob("*/tune.json")
+    chosen = json.loads(tune_json.read_text())["choice"]["chosen"]
+    assert chosen in ("realesr-animevideov3-x4", "go-repair-prior-4")
+    tuned = "fine-tuned" if chosen == "realesr-animevideov3-x4" else "pretrained (no fine-tuning)"
+    assert f"compact:{chosen} ({tuned})" in done.stdout
     for name in (
         "model.ply",
         "model.glb",

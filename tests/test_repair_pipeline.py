@@ -66,7 +66,9 @@ def test_example_runs_the_compact_repair_chain_by_default(tmp_path, monkeypatch)
         assert steps[name].status == "ran", name
     assert steps["repair"].record["repair_model"] == "compact"
     metrics = json.loads((steps["eval"].artifact_dir / "metrics.json").read_text())
-    assert metrics["model"] == "repair" and metrics["repair_model"].startswith(f"compact:{DEFAULT_MODEL}")
+    choice = json.loads((steps["tune"].artifact_dir / "tune.json").read_text())["choice"]
+    assert choice["tuned"] == DEFAULT_MODEL and choice["prior"] == "go-repair-prior-4"  # tune.prior_choice
+    assert metrics["model"] == "repair" and metrics["repair_model"].startswith(f"compact:{choice['chosen']}")
 
     # another compact model: the leave-one-out runs and noise pairs do not read the weights (only whether
     # there are any: a gate input), so they stay cached; the chain from tune on runs with the new model
