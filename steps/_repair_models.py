@@ -223,7 +223,7 @@ def _prior_psnr(
     prior = load_restorer(params.prior_choice)
     refs = None
     if prior.channels == 8:
-        refs = training_view_references(views, _pair_source(inputs, params, views).coarse, params.backend)
+        refs = training_view_references(views, art.read_gaussians(inputs["coarse"]).detach(), params.backend)
     out = {}
     for view, pairs in held.items():
         pairs = [with_reference(p, refs) for p in pairs] if refs is not None else pairs

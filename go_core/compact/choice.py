@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from go_core.metrics.psnr import mse
+
 Pairs = Sequence[tuple[torch.Tensor, torch.Tensor]]  # (degraded, clean) [1, C, r, r] in the square frame
 
 
@@ -32,8 +34,9 @@ class FoldScore:
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    """PSNR (dB) of two images in [0, 1]."""
-    return float(-10.0 * np.log10(max(float(((a - b) ** 2).mean()), 1e-12)))
+    """PSNR (dB) of two images in [0, 1]: the eval's MSE (go_core.metrics.psnr), floored at 1e-12 so that a
+    perfect restoration scores 120 dB, not infinity, and a fold's mean stays finite."""
+    return float(-10.0 * np.log10(max(float(mse(a, b)), 1e-12)))
 
 
 @torch.no_grad()
