@@ -342,3 +342,32 @@ def test_voted_masks_keep_the_anti_aliased_edge():
     np.testing.assert_array_equal(out[band], np.clip(hole[band], 0, 1))
     assert ((out > 0) & (out < 1)).sum() > 20  # the circle's anti-aliased rim survives
     assert out[20:26, 26:32].max() == 0.0  # the carved disc stays out
+
+
+def test_the_mapper_never_registers_a_photo_from_2d_matches_alone(monkeypatch, tmp_path):
+    """COLMAP 4 registers a photo that sees too few 3D points from its 2D-2D matches (on by default in
+    pycolmap); on a turntable capture that fallback posed 5 photos 56-70 deg off with every check passed
+    (docs/photos.md, "Repeatability"). The mapper must get it off, with the seed and its one thread."""
+    import pycolmap
+
+    from go_core.errors import PoseCheckError
+    from go_core.photos import sfm as sfm_mod
+
+    assert pycolmap.IncrementalPipelineOptions().structure_less_registration_fallback  # COLMAP's default
+    seen = []
+
+    def mapping(*args, options, **kwargs):
+        seen.append(options)
+        return {}
+
+    monkeypatch.setattr(sfm_mod, "_write_inputs", lambda photos, *a: [p.name for p in photos])
+    monkeypatch.setattr(sfm_mod, "_extract", lambda *a: None)
+    monkeypatch.setattr(sfm_mod, "_match", lambda *a: None)
+    monkeypatch.setattr(sfm_mod, "_verified_pairs", lambda db: 0)
+    monkeypatch.setattr(pycolmap, "incremental_mapping", mapping)
+    photos = [sfm_mod.SfmPhoto(f"p{k}", np.zeros((8, 8, 3), np.float32)) for k in range(3)]
+    with pytest.raises(PoseCheckError, match="no reconstruction"):
+        sfm_mod.run_sfm(photos, SfmSettings("sift", 64, 2, seed=7), use_masks=False, workdir=tmp_path)
+    (options,) = seen
+    assert options.structure_less_registration_fallback is False
+    assert options.random_seed == 7 and options.num_threads == 1

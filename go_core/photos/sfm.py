@@ -46,6 +46,10 @@ class SfmSettings:
     num_threads: int = 1  # the mapper's; 1: COLMAP's poses repeat exactly
     extraction_workers: int = 1  # SIFT on photo subsets at once, one thread each: identical features
     matching_threads: int = 1  # SIFT matching + verification, per pair: identical at any count
+    # COLMAP 4's registration from 2D-2D matches when a photo sees too few 3D points: off. On a 66-photo
+    # turntable it once posed 5 front views 56-70 deg off (the rest then built on them) with every check
+    # passed; left off, the same database gives bit-identical poses (docs/photos.md, "Repeatability")
+    structure_less_fallback: bool = False
     seed: int = 0
 
 
@@ -442,6 +446,7 @@ def run_sfm(
             options.num_threads = settings.num_threads
             options.random_seed = settings.seed
             options.ba_refine_principal_point = False
+            options.structure_less_registration_fallback = settings.structure_less_fallback
             advance = _at_most(progress("photos registered", len(photos)), len(photos))
             (work / "sparse").mkdir()
             recs = pycolmap.incremental_mapping(
