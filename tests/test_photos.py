@@ -346,14 +346,13 @@ def test_voted_masks_keep_the_anti_aliased_edge():
 
 def test_the_mapper_never_registers_a_photo_from_2d_matches_alone(monkeypatch, tmp_path):
     """COLMAP 4 registers a photo that sees too few 3D points from its 2D-2D matches (on by default in
-    pycolmap); on a turntable capture that fallback posed 5 photos 56-70 deg off with every check passed
+    pycolmap 4.2); on a turntable capture that fallback posed 5 photos 56-70 deg off with every check passed
     (docs/photos.md, "Repeatability"). The mapper must get it off, with the seed and its one thread."""
     import pycolmap
 
     from go_core.errors import PoseCheckError
     from go_core.photos import sfm as sfm_mod
 
-    assert pycolmap.IncrementalPipelineOptions().structure_less_registration_fallback  # COLMAP's default
     seen = []
 
     def mapping(*args, options, **kwargs):
@@ -369,5 +368,5 @@ def test_the_mapper_never_registers_a_photo_from_2d_matches_alone(monkeypatch, t
     with pytest.raises(PoseCheckError, match="no reconstruction"):
         sfm_mod.run_sfm(photos, SfmSettings("sift", 64, 2, seed=7), use_masks=False, workdir=tmp_path)
     (options,) = seen
-    assert options.structure_less_registration_fallback is False
+    assert getattr(options, "structure_less_registration_fallback", False) is False  # older COLMAPs lack it
     assert options.random_seed == 7 and options.num_threads == 1

@@ -446,7 +446,8 @@ def run_sfm(
             options.num_threads = settings.num_threads
             options.random_seed = settings.seed
             options.ba_refine_principal_point = False
-            options.structure_less_registration_fallback = settings.structure_less_fallback
+            if hasattr(options, "structure_less_registration_fallback"):  # older COLMAPs have none
+                options.structure_less_registration_fallback = settings.structure_less_fallback
             advance = _at_most(progress("photos registered", len(photos)), len(photos))
             (work / "sparse").mkdir()
             recs = pycolmap.incremental_mapping(
