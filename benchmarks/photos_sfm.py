@@ -49,30 +49,44 @@ def _auto_masks(files, tmp: Path) -> list[np.ndarray]:
         return list(np.load(cache)["masks"])
 
 
-def _photos(data: Path, size: int, masks: str, tmp: Path):
-    """SfmPhotos at ``size`` with the product's auto masks (cached) or the reference masks."""
-    import cv2
-
-    from go_core.io.images import read_mask
-    from go_core.photos.folder import camera_groups, photo_files, read_photo, scan_photo
-    from go_core.photos.sfm import SfmPhoto
+def photo_files_of(data: Path) -> list:
+    """The header facts of every photo of the set's ``images/`` (go_core.photos.folder)."""
+    from go_core.photos.folder import photo_files, scan_photo
     from go_core.scene.common import Problems
 
-    files = [scan_photo(f, Problems(strict=True)) for f in photo_files(data / "images")]
+    return [scan_photo(f, Problems(strict=True)) for f in photo_files(data / "images")]
+
+
+def sfm_photos(files: list, masks: list[np.ndarray], size: int) -> list:
+    """SfmPhotos of ``files`` read at ``size`` (long side), with ``masks`` resized to them, their camera
+    groups and EXIF focal lengths in pixels of the image as read: what the scene step gives SfM."""
+    import cv2
+
+    from go_core.photos.folder import camera_groups, read_photo
+    from go_core.photos.sfm import SfmPhoto
+
     images = [read_photo(f, size)[0] for f in files]
+    masks = [
+        cv2.resize(m, im.shape[1::-1], interpolation=cv2.INTER_LINEAR)
+        for m, im in zip(masks, images, strict=True)
+    ]
+    groups = camera_groups(files)
+    return [
+        SfmPhoto(f.name, im, m, g, f.focal_px(max(im.shape[:2])))
+        for f, im, m, g in zip(files, images, masks, groups, strict=True)
+    ]
+
+
+def _photos(data: Path, size: int, masks: str, tmp: Path):
+    """SfmPhotos at ``size`` with the product's auto masks (cached) or the reference masks."""
+    from go_core.io.images import read_mask
+
+    files = photo_files_of(data)
     if masks == "reference":
         ms = [read_mask(data / "reference" / "masks" / f"{f.name}.png") for f in files]
     else:
         ms = _auto_masks(files, tmp)
-    ms = [
-        cv2.resize(m, im.shape[1::-1], interpolation=cv2.INTER_LINEAR)
-        for m, im in zip(ms, images, strict=True)
-    ]
-    groups = camera_groups(files)
-    return [
-        SfmPhoto(f.name, im, m, g, f.focal_px(size))
-        for f, im, m, g in zip(files, images, ms, groups, strict=True)
-    ]
+    return sfm_photos(files, ms, size)
 
 
 def run_variant(data: Path, variant: str, masks: str, tmp: Path, matcher: str, agreement: bool) -> dict:

@@ -29,6 +29,9 @@ import numpy as np
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos" / "ethiopian_head"
 OUT = Path(__file__).resolve().parent / "results" / "photos_sfm_repeatability.json"
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from photos_sfm import photo_files_of, sfm_photos  # noqa: E402
+
 
 def _digest(a) -> str:
     return hashlib.sha1(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]
@@ -66,10 +69,8 @@ def one_run(data: Path, keep: Path, threads: int) -> dict:
     from go_pipeline.steps.params import SceneParams
 
     from go_core.photos import sfm as sfm_mod
-    from go_core.photos.folder import camera_groups, read_photo
     from go_core.photos.masks import photo_masker
-    from go_core.photos.scene import _resize_to, photo_masks, scan_photo_folder
-    from go_core.scene.common import Problems
+    from go_core.photos.scene import photo_masks
 
     torch.set_num_threads(threads)
     p = SceneParams()
@@ -81,17 +82,12 @@ def one_run(data: Path, keep: Path, threads: int) -> dict:
         yield str(keep)
 
     sfm_mod.tempfile.TemporaryDirectory = kept_dir  # this process only: keep the database
-    files = scan_photo_folder(data, 4, Problems(strict=True))
+    files = photo_files_of(data)
     masks, _ = photo_masks(files, photo_masker(p.photo_masks, threads=threads)[0])
     settings = sfm_mod.SfmSettings(
         p.pose_matcher, p.sfm_features, p.sfm_window, extraction_workers=threads, matching_threads=threads
     )
-    photos = []  # read at sfm_size, as the step does when it is larger than photo_size
-    for f, m, g in zip(files, masks, camera_groups(files), strict=True):
-        img = read_photo(f, p.sfm_size)[0]
-        photos.append(
-            sfm_mod.SfmPhoto(f.name, img, _resize_to(m, img.shape[:2]), g, f.focal_px(max(img.shape[:2])))
-        )
+    photos = sfm_photos(files, masks, p.sfm_size)  # at sfm_size, as the step reads them when larger
     out = sfm_mod.run_sfm(photos, settings, use_masks=True)
     return {
         "threads": threads,
@@ -136,9 +132,17 @@ def runs(args) -> dict:
 
 
 def mapper(args) -> dict:
-    """COLMAP's mapper on the first run's database at each seed, the fallback on and off."""
-    import pycolmap
+    """COLMAP's mapper on the first run's database at each seed, with the scene step's mapper options
+    (``mapper_options``), the fallback on and off."""
+    from dataclasses import replace
 
+    import pycolmap
+    from go_pipeline.steps.params import SceneParams
+
+    from go_core.photos.sfm import SfmSettings, mapper_options
+
+    p = SceneParams()
+    settings = SfmSettings(p.pose_matcher, p.sfm_features, p.sfm_window)
     src = args.tmp / "run_0" / "sfm"
     poses, rows = {}, []
     for fallback in (True, False):
@@ -147,9 +151,7 @@ def mapper(args) -> dict:
                 work = Path(t)
                 shutil.copy(src / "database.db", work / "database.db")
                 (work / "sparse").mkdir()
-                o = pycolmap.IncrementalPipelineOptions()
-                o.num_threads, o.random_seed, o.ba_refine_principal_point = 1, seed, False
-                o.structure_less_registration_fallback = fallback
+                o = mapper_options(replace(settings, seed=seed, structure_less_fallback=fallback))
                 recs = pycolmap.incremental_mapping(
                     work / "database.db", src / "images", work / "sparse", options=o
                 )

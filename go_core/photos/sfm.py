@@ -414,6 +414,20 @@ def _at_most(advance: Callable[[int], None], total: int) -> Callable[[int], None
     return step
 
 
+def mapper_options(settings: SfmSettings):
+    """COLMAP's incremental mapper options for ``settings``: its threads, its seed, the principal point
+    fixed, the structure-less fallback as set (``SfmSettings.structure_less_fallback``)."""
+    import pycolmap
+
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = settings.num_threads
+    options.random_seed = settings.seed
+    options.ba_refine_principal_point = False
+    if hasattr(options, "structure_less_registration_fallback"):  # older COLMAPs have none
+        options.structure_less_registration_fallback = settings.structure_less_fallback
+    return options
+
+
 def run_sfm(
     photos: list[SfmPhoto],
     settings: SfmSettings,
@@ -442,12 +456,7 @@ def run_sfm(
             _extract(photos, work, names, use_masks, settings, progress("features", len(photos)))
             _match(work, names, pairs, settings, progress("pairs matched", len(pairs)))
             verified = _verified_pairs(work / "database.db")
-            options = pycolmap.IncrementalPipelineOptions()
-            options.num_threads = settings.num_threads
-            options.random_seed = settings.seed
-            options.ba_refine_principal_point = False
-            if hasattr(options, "structure_less_registration_fallback"):  # older COLMAPs have none
-                options.structure_less_registration_fallback = settings.structure_less_fallback
+            options = mapper_options(settings)
             advance = _at_most(progress("photos registered", len(photos)), len(photos))
             (work / "sparse").mkdir()
             recs = pycolmap.incremental_mapping(
