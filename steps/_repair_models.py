@@ -195,27 +195,32 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
     folds = [FoldScore(**json.loads(f.read_text(encoding="utf-8"))) for f in folder.glob("fold_*.json")]
     done = {f.view for f in folds}
     if len(done) < len(held):
-        prior_psnr = _prior_psnr(inputs, params, views, held)
+        prior_outputs = _prior_outputs(inputs, params, views, held)
         for view in held:
             if view not in done:
-                tuned_psnr = _fold_tuned_psnr(ctx, inputs, params, name, views, view, held[view])
-                folds.append(FoldScore(view, len(held[view]), tuned_psnr, prior_psnr[view]))
+                folds.append(
+                    _fold_score(ctx, inputs, params, name, views, view, held[view], prior_outputs[view])
+                )
                 atomic_write_json(folder / f"fold_{view}.json", asdict(folds[-1]))
     folds.sort(key=lambda f: f.view)
     record = choice_record(folds, name, params.prior_choice)
     ctx.record(
-        restorer_chosen=record["chosen"], tuned_psnr=record["tuned_psnr"], prior_psnr=record["prior_psnr"]
+        restorer_chosen=record["chosen"],
+        consensus_restorer=record["consensus_restorer"],
+        tuned_psnr=record["tuned_psnr"],
+        prior_psnr=record["prior_psnr"],
+        blend_psnr=record["blend_psnr"],
     )
     return record
 
 
-def _prior_psnr(
+def _prior_outputs(
     inputs: dict[str, Path], params: TuneParams, views, held: dict[int, list]
-) -> dict[int, float]:
-    """The prior as shipped, scored on each training view's leave-one-out pairs, with the reference input
+) -> dict[int, list]:
+    """The prior as shipped, restoring each training view's leave-one-out pairs, with the reference input
     where the prior takes one (the nearest other training view, warped through the coarse model): computed
     once for every fold, as neither depends on the fold's tuning."""
-    from go_core.compact.choice import restored_psnr
+    from go_core.compact.choice import restored
     from go_core.compact.restorer import load_restorer
     from go_core.repair.pairs import pair_tensors, training_view_references, with_reference
 
@@ -227,16 +232,17 @@ def _prior_psnr(
     out = {}
     for view, pairs in held.items():
         pairs = [with_reference(p, refs) for p in pairs] if refs is not None else pairs
-        out[view] = restored_psnr(prior, [pair_tensors(p, resolution, prior.channels) for p in pairs])
+        out[view] = restored(prior, [pair_tensors(p, resolution, prior.channels) for p in pairs])
     return out
 
 
-def _fold_tuned_psnr(
-    ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int, held: list
-) -> float:
+def _fold_score(
+    ctx, inputs: dict[str, Path], params: TuneParams, name: str, views, view: int, held: list, prior: list
+):
     """One fold: ``name`` tuned as the tune step tunes it on every pair not of ``view`` (at a seed of its
-    own), its mean PSNR on ``held``, ``view``'s leave-one-out pairs."""
-    from go_core.compact.choice import restored_psnr
+    own), and the mean PSNR on ``held`` (``view``'s leave-one-out pairs) of its output, of the prior's
+    (``prior``, the same pairs restored) and of their mean (go_core.compact.choice.FoldScore)."""
+    from go_core.compact.choice import FoldScore, blend_psnr, mean_psnr, restored
     from go_core.compact.restorer import load_restorer
     from go_core.compact.tuning import tune_compact
     from go_core.repair.pairs import pair_tensors
@@ -253,7 +259,11 @@ def _fold_tuned_psnr(
 
     model = load_restorer(name)
     tune_compact(model, draw, source.schedule, settings, derive_seed(ctx.seed, "restorer_choice", view))
-    return restored_psnr(model, [pair_tensors(p, settings.resolution, model.channels) for p in held])
+    pairs = [pair_tensors(p, settings.resolution, model.channels) for p in held]
+    tuned = restored(model, pairs)
+    return FoldScore(
+        view, len(held), mean_psnr(tuned, pairs), mean_psnr(prior, pairs), blend_psnr(tuned, prior, pairs)
+    )
 
 
 def _write_prior_chosen(ctx, choice: dict) -> None:

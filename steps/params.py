@@ -234,9 +234,10 @@ class RepairParams(RepairSettings):
         "repaired", doc="consensus: the second model is its coarse fit repaired, or the coarse fit alone"
     )
     consensus_restorer: str = setting(
-        "",
-        doc="consensus: the restorer of the second model's repair: '' the run's own (tuned), or a compact "
-        "model's name, not tuned (e.g. go-repair-prior-4)",
+        "choice",
+        doc="consensus: the restorer of the second model's repair: 'choice' the tune step's (the prior of "
+        "tune.prior_choice where the blend of both restorers won the held-out folds, else the run's own), "
+        "'' the run's own (tuned), or a compact model's name, not tuned (e.g. go-repair-prior-4)",
     )
     consensus_models: int = setting(
         2,

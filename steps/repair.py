@@ -112,21 +112,29 @@ def _consensus_members(ctx, scene_inputs, params: RepairParams, diffusion, setti
     return members
 
 
-def _consensus_record(members: list, params: RepairParams) -> dict:
+def _consensus_record(members: list, restorer: str) -> dict:
     """repair.json's ``consensus``: the second model's seed, member and counts, its restorer, how many models
     agree, and (more than two) the further models' seeds and counts."""
-    record = {**members[0].summary(), "restorer": params.consensus_restorer or "own"}
+    record = {**members[0].summary(), "restorer": restorer or "own"}
     record["models"] = len(members) + 1
     if len(members) > 1:
         record["further"] = [m.summary() for m in members[1:]]
     return record
 
 
-def _consensus_restorer(params: RepairParams, repair_model: str, device: str):
-    """The engine that repairs the second model when ``consensus_restorer`` names one: that compact model as
-    shipped (a repair prior: its alpha and reference inputs come with it); None for the run's own (tuned).
-    Resolved before the run's own model is loaded, so a wrong choice fails before any heavy load."""
-    name = params.consensus_restorer
+def consensus_restorer_name(params: RepairParams, tune_info: dict) -> str:
+    """The second model's restorer: ``repair.consensus_restorer``, where 'choice' is the tune step's
+    (tune.json's ``choice`` → ``consensus_restorer``; '' when it made no choice): '' for the run's own."""
+    if params.consensus_restorer != "choice":
+        return params.consensus_restorer
+    return str((tune_info.get("choice") or {}).get("consensus_restorer", ""))
+
+
+def _consensus_restorer(name: str, params: RepairParams, repair_model: str, device: str):
+    """The engine that repairs the second model when ``name`` (consensus_restorer_name) names one: that
+    compact model as shipped (a repair prior: its alpha and reference inputs come with it); None for the
+    run's own (tuned). Resolved before the run's own model is loaded, so a wrong choice fails before any
+    heavy load."""
     if not (params.consensus and name):
         return None
     if repair_model != "compact":
@@ -149,7 +157,8 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     tune_info = art.read_json(inputs["tune"], art.TUNE_INFO)  # a skipped tune step skips this one (registry)
     device = str(ctx.device)
     repair_model = str(tune_info.get("repair_model", "sd15"))
-    second_restorer = _consensus_restorer(params, repair_model, device)
+    second_name = consensus_restorer_name(params, tune_info)
+    second_restorer = _consensus_restorer(second_name, params, repair_model, device)
     # RepairSettings with the coarse step's settings (params.coarse), as the model needs them
     diffusion, lora_note, settings = repair_model_named(repair_model).load(inputs, tune_info, params, device)
     lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
@@ -189,7 +198,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
         "lpips_term": lpips_note,
         "device": device,
         "count": len(result),
-        "consensus": _consensus_record(members, params) if members else "off",
+        "consensus": _consensus_record(members, second_name) if members else "off",
         **summary,
     }
     art.write_json(out, art.REPAIR_INFO, info)

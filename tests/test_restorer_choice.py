@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from go_core.compact.choice import FoldScore, choice_record, choose_prior, psnr, restored_psnr
+from go_core.compact.choice import (
+    FoldScore,
+    blend_psnr,
+    choice_record,
+    choose_blend,
+    choose_prior,
+    psnr,
+    restored_psnr,
+)
 from tests import test_compact
 from tests.test_compact import LORA, REPAIR, _repair, _tune
 
@@ -45,14 +53,35 @@ def test_restored_psnr_against_hand_values():
         restored_psnr(_Shift(0.0), [])
 
 
+def test_a_blend_of_two_restorers_erring_apart_is_scored_on_their_mean():
+    clean = torch.full((1, 3, 8, 8), 0.5)
+    pairs = [(clean, clean)]
+    low, high = [clean - 0.1], [clean + 0.1]  # each 20 dB (MSE 0.01), their mean exact
+    assert blend_psnr(low, high, pairs) == pytest.approx(120.0)
+    assert blend_psnr(low, [clean - 0.3], pairs) == pytest.approx(-10 * np.log10(0.04), abs=1e-4)
+    with pytest.raises(ValueError):
+        blend_psnr(low, [], pairs)
+
+
 def test_the_prior_is_chosen_only_when_its_mean_is_higher():
-    folds = [FoldScore(0, 2, 24.0, 26.0), FoldScore(1, 2, 25.0, 22.0)]  # means 24.5 (tuned) and 24.0
+    # means: tuned 24.5, prior 24.0, blend 24.75
+    folds = [FoldScore(0, 2, 24.0, 26.0, 25.5), FoldScore(1, 2, 25.0, 22.0, 24.0)]
     assert not choose_prior(folds)
-    assert choose_prior([*folds, FoldScore(2, 2, 20.0, 23.0)])  # 23.0 against 23.33
-    assert not choose_prior([FoldScore(0, 1, 20.0, 20.0)])  # a tie keeps the tuned restorer
+    assert choose_prior([*folds, FoldScore(2, 2, 20.0, 23.0, 22.0)])  # 23.0 against 23.33
+    assert not choose_prior([FoldScore(0, 1, 20.0, 20.0, 20.0)])  # a tie keeps the tuned restorer
     record = choice_record(folds, "tuned-one", "prior-one")
     assert record["chosen"] == "tuned-one" and record["tuned_psnr"] == 24.5 and record["prior_psnr"] == 24.0
+    assert record["blend_psnr"] == 24.75 and record["consensus_restorer"] == "prior-one"  # the blend won
     assert [f["view"] for f in record["folds"]] == [0, 1]
+
+
+def test_the_prior_repairs_the_second_model_only_where_the_blend_beats_the_tuned_restorer():
+    kept = [FoldScore(0, 2, 24.0, 22.0, 23.9)]  # the blend below the tuned restorer: the run's own
+    assert not choose_blend(kept) and choice_record(kept, "t", "p")["consensus_restorer"] == ""
+    assert not choose_blend([FoldScore(0, 2, 24.0, 24.0, 24.0)])  # a tie: the run's own
+    won = [FoldScore(0, 2, 24.0, 25.0, 26.0)]  # the prior chosen: it repairs both models anyway
+    assert choose_prior(won) and not choose_blend(won)
+    assert choice_record(won, "t", "p")["consensus_restorer"] == ""
 
 
 def test_tune_step_scores_every_held_out_fold_and_resumes_them(
@@ -80,6 +109,8 @@ def test_tune_step_scores_every_held_out_fold_and_resumes_them(
     assert choice["folds"][0]["prior_psnr"] == pytest.approx(restored_psnr(prior, first), abs=1e-4)
     assert choice["folds"][0]["tuned_psnr"] != choice["folds"][1]["tuned_psnr"]
     assert choice["chosen"] == ("tiny-prior" if choice["prior_psnr"] > choice["tuned_psnr"] else TUNED)
+    blend_won = choice["chosen"] == TUNED and choice["blend_psnr"] > choice["tuned_psnr"]
+    assert choice["consensus_restorer"] == ("tiny-prior" if blend_won else "")
 
     calls = []
     real = tuning.tune_compact
@@ -114,32 +145,45 @@ def test_a_step_killed_between_folds_tunes_only_the_folds_left(
     assert len(calls) == 1 + (whole["chosen"] == TUNED)  # fold 0, then the final tuning if it is needed
 
 
-@pytest.mark.parametrize("prior_wins", [True, False])
-def test_the_chosen_restorer_is_the_one_the_repair_uses(
+@pytest.mark.parametrize(
+    ("scores", "chosen", "second"),
+    [
+        ((20.0, 21.0, 20.5), "tiny-prior", "own"),  # the prior won: it repairs both models
+        ((21.0, 20.0, 21.5), TUNED, "tiny-prior"),  # the tuned restorer kept, the blend won
+        ((21.0, 20.0, 20.5), TUNED, "own"),  # the tuned restorer kept, the blend lost
+    ],
+)
+def test_the_chosen_restorers_are_the_ones_the_repair_uses(
     upstream,
     tmp_path,
     tiny_cache,
     tiny_prior,
     monkeypatch,
-    prior_wins,
+    scores,
+    chosen,
+    second,
 ):
     from go_pipeline.steps import _repair_models
 
-    scores = (20.0, 21.0) if prior_wins else (21.0, 20.0)
-    monkeypatch.setattr(_repair_models, "_fold_tuned_psnr", lambda *a: scores[0])
-    monkeypatch.setattr(_repair_models, "_prior_psnr", lambda *a: dict.fromkeys(a[-1], scores[1]))
+    def fold(ctx, inputs, params, name, views, view, held, prior):
+        return FoldScore(view, len(held), *scores)
+
+    monkeypatch.setattr(_repair_models, "_fold_score", fold)
+    monkeypatch.setattr(_repair_models, "_prior_outputs", lambda *a: dict.fromkeys(a[-1], []))
     _, dirs = upstream
     tuned = _tune(tmp_path / "t", dirs, CHOICE)
     info = json.loads((tuned.out_dir / "tune.json").read_text())
-    assert info["choice"]["chosen"] == ("tiny-prior" if prior_wins else TUNED)
-    assert info["status"] == ("pretrained" if prior_wins else "ok")
-    assert info["compact"]["name"] == info["choice"]["chosen"]
-    assert (tuned.out_dir / "compact.safetensors").is_file() != prior_wins
+    assert info["choice"]["chosen"] == chosen
+    assert info["status"] == ("pretrained" if chosen != TUNED else "ok")
+    assert info["compact"]["name"] == chosen
+    assert (tuned.out_dir / "compact.safetensors").is_file() == (chosen == TUNED)
+    params = {**REPAIR, "consensus": True, "coarse": {"iterations": 20, "checkpoint_every": 8}}
     repaired = json.loads(
-        (_repair(tmp_path / "r", dirs, tuned.out_dir, REPAIR).out_dir / "repair.json").read_text()
+        (_repair(tmp_path / "r", dirs, tuned.out_dir, params).out_dir / "repair.json").read_text()
     )
-    assert repaired["compact_model"] == info["choice"]["chosen"]
-    assert repaired["lora"] == ("pretrained (no fine-tuning)" if prior_wins else "fine-tuned")
+    assert repaired["compact_model"] == chosen
+    assert repaired["lora"] == ("pretrained (no fine-tuning)" if chosen != TUNED else "fine-tuned")
+    assert repaired["consensus"]["restorer"] == second  # repair.consensus_restorer: choice (the default)
 
 
 def test_the_default_prior_choice_names_a_prior_shipped_in_the_package():

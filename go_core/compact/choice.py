@@ -8,6 +8,11 @@ photos, so they can judge: for each training view k the run's restorer is tuned 
 on every pair whose view is not k, and it and the prior restore view k's leave-one-out renders. The prior
 is chosen when its PSNR against the photos, averaged over the folds, is higher (docs/repair_prior.md,
 "Choosing the restorer per scene").
+
+Where the tuned restorer is kept, the folds also score the mean of both restorers' outputs: when that
+blend beats the tuned restorer alone, the two kinds of repair err differently on this scene, and the
+repair's second model (``repair.consensus``) is repaired by the prior, so that what both models render
+is their agreement (``consensus_restorer``; docs/real_captures.md).
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ class FoldScore:
     pairs: int
     tuned_psnr: float
     prior_psnr: float
+    blend_psnr: float  # the mean of both restorers' outputs
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
@@ -40,17 +46,32 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 @torch.no_grad()
-def restored_psnr(model: torch.nn.Module, pairs: Pairs) -> float:
-    """Mean PSNR of ``model``'s restored RGB (clamped to [0, 1]; a prior's alpha is left out) against the
-    clean RGB, over ``pairs``."""
+def restored(model: torch.nn.Module, pairs: Pairs) -> list[torch.Tensor]:
+    """``model``'s restored RGB of each pair's degraded input, clamped to [0, 1] (a prior's alpha is left
+    out), in eval mode."""
     if not pairs:
         raise ValueError("no held-out pairs to score a restorer on")
     was = model.training
     model.eval()
     try:
-        return float(np.mean([psnr(model(d).clamp(0.0, 1.0)[:, :3], c[:, :3]) for d, c in pairs]))
+        return [model(d).clamp(0.0, 1.0)[:, :3] for d, _ in pairs]
     finally:
         model.train(was)
+
+
+def mean_psnr(outputs: Sequence[torch.Tensor], pairs: Pairs) -> float:
+    """Mean PSNR of ``outputs`` against the clean RGB of ``pairs``, pair by pair."""
+    return float(np.mean([psnr(o, c[:, :3]) for o, (_, c) in zip(outputs, pairs, strict=True)]))
+
+
+def restored_psnr(model: torch.nn.Module, pairs: Pairs) -> float:
+    """Mean PSNR of ``model``'s restored RGB (``restored``) against the clean RGB, over ``pairs``."""
+    return mean_psnr(restored(model, pairs), pairs)
+
+
+def blend_psnr(first: Sequence[torch.Tensor], second: Sequence[torch.Tensor], pairs: Pairs) -> float:
+    """Mean PSNR of the mean of two restorers' outputs of the same pairs."""
+    return mean_psnr([0.5 * (a + b) for a, b in zip(first, second, strict=True)], pairs)
 
 
 def choose_prior(folds: Sequence[FoldScore]) -> bool:
@@ -60,14 +81,23 @@ def choose_prior(folds: Sequence[FoldScore]) -> bool:
     return float(np.mean([f.prior_psnr for f in folds])) > float(np.mean([f.tuned_psnr for f in folds]))
 
 
+def choose_blend(folds: Sequence[FoldScore]) -> bool:
+    """True when the tuned restorer is kept and the blend's PSNR averaged over the folds is above its own."""
+    tuned = float(np.mean([f.tuned_psnr for f in folds]))
+    return not choose_prior(folds) and float(np.mean([f.blend_psnr for f in folds])) > tuned
+
+
 def choice_record(folds: Sequence[FoldScore], tuned: str, prior: str) -> dict:
-    """tune.json's ``choice``: the two restorers, every fold's scores, their means and the one chosen."""
+    """tune.json's ``choice``: the two restorers, every fold's scores, their means, the one chosen and the
+    restorer of the consensus's second model (the prior where the blend won, else '': the run's own)."""
     return {
         "tuned": tuned,
         "prior": prior,
         "chosen": prior if choose_prior(folds) else tuned,
+        "consensus_restorer": prior if choose_blend(folds) else "",
         "tuned_psnr": round(float(np.mean([f.tuned_psnr for f in folds])), 4),
         "prior_psnr": round(float(np.mean([f.prior_psnr for f in folds])), 4),
+        "blend_psnr": round(float(np.mean([f.blend_psnr for f in folds])), 4),
         "folds": [_rounded(asdict(f)) for f in folds],
     }
 
@@ -76,4 +106,14 @@ def _rounded(row: dict) -> dict:
     return {k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()}
 
 
-__all__ = ["FoldScore", "choice_record", "choose_prior", "psnr", "restored_psnr"]
+__all__ = [
+    "FoldScore",
+    "blend_psnr",
+    "choice_record",
+    "choose_blend",
+    "choose_prior",
+    "mean_psnr",
+    "psnr",
+    "restored",
+    "restored_psnr",
+]
