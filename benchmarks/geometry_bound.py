@@ -41,7 +41,7 @@ from go_core.mesh.files import read_mesh_npz
 from go_core.mesh.hull_mesh import hull_mesh
 from go_core.mesh.surface import TriMesh
 from go_core.mesh.views import fibonacci_directions
-from go_core.metrics.geometry import geometry_metrics, silhouette
+from go_core.metrics.geometry import bounding_radius, geometry_metrics, silhouette
 from go_core.scene.loader import load_scene
 
 KEYS = ("chamfer_l1", "accuracy", "completeness", "fscore_1pct", "fscore_2pct")
@@ -59,7 +59,7 @@ def framing_cameras(truth: TriMesh, train_cameras: list[Camera], views: int) -> 
     """``views`` cameras on a Fibonacci sphere around ``truth`` that each see all of it (docstring)."""
     like = train_cameras[0]
     centre = 0.5 * (truth.vertices.min(0) + truth.vertices.max(0))
-    radius = float(np.linalg.norm(truth.vertices - centre, axis=1).max())
+    radius = bounding_radius(truth)  # about ``centre``, the bounding box's centre
     half_fov = np.arctan(0.5 * min(like.width, like.height) / float(np.asarray(like.K)[0, 0]))
     distance = radius / np.sin(0.9 * half_fov)
     up = fit_ellipse(train_cameras).normal
@@ -124,7 +124,7 @@ def concave_share(
     """How much of ``truth`` lies inside the all-directions hull, and how much of that the ``cams`` see."""
     from scipy.spatial import cKDTree
 
-    from go_core.metrics.geometry import bounding_radius, sample_surface
+    from go_core.metrics.geometry import sample_surface
     from go_core.seeding import numpy_rng
 
     pts, nrm = sample_surface(truth, probe, numpy_rng(0, "geometry_bound", "probe"))

@@ -35,7 +35,6 @@ def score(work: Path) -> dict:
 
     from go_core.compact.choice import choice_record
     from go_core.repair.data import training_views
-    from go_core.repair.pairs import LooPairs
 
     tune_dir = tune_artifact(work)
     manifest = json.loads((tune_dir / "manifest.json").read_text())
@@ -45,9 +44,7 @@ def score(work: Path) -> dict:
     params = TuneParams(**given)
     name = compact_info(inputs)["name"]
     _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
-    loo = LooPairs(inputs["loo"])
-    pairs = [loo.get(i) for i in range(len(loo))]
-    held = {view: [p for p in pairs if p.view == view] for view in sorted({p.view for p in pairs})}
+    held = rm.held_out_pairs(inputs)
     ctx = SimpleNamespace(seed=int(manifest["seed"]))
     start = time.perf_counter()
     prior = rm._prior_outputs(inputs, params, views, held)

@@ -186,11 +186,7 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
 
     if not params.prior_choice or name in SHIPPED:
         return None
-    from go_core.repair.pairs import LooPairs
-
-    loo = LooPairs(inputs["loo"])
-    pairs = [loo.get(i) for i in range(len(loo))]  # read once for every fold
-    held = {view: [p for p in pairs if p.view == view] for view in sorted({p.view for p in pairs})}
+    held = held_out_pairs(inputs)
     folder = Path(ctx.checkpoint_dir) / "restorer_choice"
     folds = [FoldScore(**json.loads(f.read_text(encoding="utf-8"))) for f in folder.glob("fold_*.json")]
     done = {f.view for f in folds}
@@ -212,6 +208,16 @@ def restorer_choice(ctx, inputs: dict[str, Path], params: TuneParams, name: str,
         blend_psnr=record["blend_psnr"],
     )
     return record
+
+
+def held_out_pairs(inputs: dict[str, Path]) -> dict[int, list]:
+    """The leave-one-out pairs grouped by training view (each fold's held-out set), read once for every
+    fold."""
+    from go_core.repair.pairs import LooPairs
+
+    loo = LooPairs(inputs["loo"])
+    pairs = [loo.get(i) for i in range(len(loo))]
+    return {view: [p for p in pairs if p.view == view] for view in sorted({p.view for p in pairs})}
 
 
 def _prior_outputs(
