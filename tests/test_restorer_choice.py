@@ -15,8 +15,9 @@ from go_core.compact.choice import (
     choice_record,
     choose_blend,
     choose_prior,
+    mean_psnr,
     psnr,
-    restored_psnr,
+    restored,
 )
 from tests import test_compact
 from tests.test_compact import LORA, REPAIR, _repair, _tune
@@ -26,6 +27,11 @@ upstream, tiny_cache, tiny_prior = test_compact.upstream, test_compact.tiny_cach
 
 CHOICE = {**LORA, "prior_choice": "tiny-prior"}
 TUNED = "realesr-animevideov3-x4"  # the tiny stand-in of tests/_tiny_repair.py
+
+
+def restored_psnr(model: torch.nn.Module, pairs) -> float:
+    """The mean PSNR a fold scores a restorer by: its outputs (``restored``) against the clean RGB."""
+    return mean_psnr(restored(model, pairs), pairs)
 
 
 class _Shift(torch.nn.Module):

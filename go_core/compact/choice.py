@@ -64,11 +64,6 @@ def mean_psnr(outputs: Sequence[torch.Tensor], pairs: Pairs) -> float:
     return float(np.mean([psnr(o, c[:, :3]) for o, (_, c) in zip(outputs, pairs, strict=True)]))
 
 
-def restored_psnr(model: torch.nn.Module, pairs: Pairs) -> float:
-    """Mean PSNR of ``model``'s restored RGB (``restored``) against the clean RGB, over ``pairs``."""
-    return mean_psnr(restored(model, pairs), pairs)
-
-
 def blend_psnr(first: Sequence[torch.Tensor], second: Sequence[torch.Tensor], pairs: Pairs) -> float:
     """Mean PSNR of the mean of two restorers' outputs of the same pairs."""
     return mean_psnr([0.5 * (a + b) for a, b in zip(first, second, strict=True)], pairs)
@@ -115,5 +110,4 @@ __all__ = [
     "mean_psnr",
     "psnr",
     "restored",
-    "restored_psnr",
 ]
