@@ -160,6 +160,7 @@ def cf_test_cameras(inputs: dict[str, Path], scene, gaussians, gts, params: Eval
 
 def geometry(inputs: dict[str, Path], scene, cf: bool, params: EvalParams, ctx) -> dict | None:
     """The ``geometry`` entry of metrics.json (and geometry.png), or a reason why there is none."""
+    import torch
     from PIL import Image
 
     from go_core.mesh.files import read_mesh_npz, read_ply
@@ -176,7 +177,9 @@ def geometry(inputs: dict[str, Path], scene, cf: bool, params: EvalParams, ctx) 
     gt = read_mesh_npz(art.GT_MESH.path(inputs["scene"]))
     meshes = {"final": read_ply(art.MESH_PLY.path(mesh_dir)), "hull": read_ply(art.HULL_MESH.path(mesh_dir))}
     masks = [v.mask if v.mask is not None else np.ones((v.camera.height, v.camera.width)) for v in scene.test]
-    res = score_meshes(meshes, gt, scene.test_cameras, masks, params.geometry_samples, int(ctx.seed))
+    res = score_meshes(
+        meshes, gt, scene.test_cameras, masks, params.geometry_samples, int(ctx.seed), torch.get_num_threads()
+    )  # the step's threads share the queries; the figures do not depend on how many
     cam = scene.test_cameras[0]
     picture = np.concatenate(
         [shaded(gt, cam), shaded(meshes["final"], cam, use_colours=True), shaded(meshes["hull"], cam)], axis=1

@@ -56,6 +56,25 @@ def test_metrics_are_deterministic_for_a_seed():
     assert a == b
 
 
+def test_threaded_queries_equal_a_brute_force_reference():
+    """The nearest-sample queries on two threads give the figures of one thread, and both equal a
+    brute-force float64 search over every pair (accuracy, completeness, precision at 1% of r = 10)."""
+    from go_core.metrics.geometry import compare_samples
+
+    rng = np.random.default_rng(5)
+    pred = (rng.normal(size=(1500, 3)), rng.normal(size=(1500, 3)))
+    gt = (rng.normal(size=(1200, 3)) * 0.9, rng.normal(size=(1200, 3)))
+    gt = (gt[0], gt[1] / np.linalg.norm(gt[1], axis=1, keepdims=True))
+    pred = (pred[0], pred[1] / np.linalg.norm(pred[1], axis=1, keepdims=True))
+    one, two = compare_samples(pred, gt, 10.0, workers=1), compare_samples(pred, gt, 10.0, workers=2)
+    assert one == two
+    dist = np.linalg.norm(pred[0][:, None, :] - gt[0][None, :, :], axis=2)
+    assert two["accuracy"] == pytest.approx(dist.min(1).mean(), rel=1e-12)
+    assert two["completeness"] == pytest.approx(dist.min(0).mean(), rel=1e-12)
+    share = (dist.min(1) < 0.1).mean()  # 1% of r = 10
+    assert 0.05 < share < 0.95 and two["precision_1pct"] == pytest.approx(share)
+
+
 def test_silhouette_of_a_sphere_mesh_matches_its_analytic_mask():
     from go_core.mesh.surface import marching_cubes
 
