@@ -1,11 +1,11 @@
 """The whole chain's wall time per scene at default settings, as a user runs it (issue 34's check: at most
 15 min wall per dev scene on 2 cores).
 
-Per scene, `go-pipeline run SCENE --workdir WORKROOT/NAME` from an empty work dir (skipped when the work dir
-already holds a finished run, so a later call only collects), then the run records under ``runs/``: the
-first run, in which every step ran, gives the wall and CPU seconds of each step and of the whole run; a
-later run that reran some steps (after a code change) is listed with the steps it ran. Run it on an idle
-machine: the walls are only meaningful when nothing else competes for the cores.
+Per scene, `go-pipeline run SCENE --workdir WORKROOT/NAME` (``--profile`` to time a profile) from an empty
+work dir (skipped when the work dir already holds a finished run, so a later call only collects), then the
+run records under ``runs/``: the first run, in which every step ran, gives the wall and CPU seconds of each
+step and of the whole run; a later run that reran some steps (after a code change) is listed with the steps
+it ran. Run it on an idle machine: the walls are only meaningful when nothing else competes for the cores.
 
     python benchmarks/pipeline_wall.py --data ../shared/data/dev --scenes basket milk --workroot W \\
         --out benchmarks/results/pipeline_wall_2cores.json
@@ -60,12 +60,18 @@ def metrics(workdir: Path) -> dict:
     return out
 
 
-def scene_entry(scene_dir: Path, workdir: Path) -> dict:
-    """Run the scene when its work dir has no finished run, then its first and later runs."""
+def scene_entry(scene_dir: Path, workdir: Path, profile: str | None) -> dict:
+    """Run the scene (with ``profile``) when its work dir has no finished run, then its first and later
+    runs."""
     if not run_records(workdir):
-        subprocess.run(["go-pipeline", "run", str(scene_dir), "--workdir", str(workdir)], check=True)
+        command = ["go-pipeline", "run", str(scene_dir), "--workdir", str(workdir)]
+        subprocess.run(command + (["--profile", profile] if profile else []), check=True)
     first, *later = run_records(workdir)
-    entry = {"first_run": describe(first, only_ran=False), "metrics": metrics(workdir)}
+    entry = {
+        "first_run": describe(first, only_ran=False),
+        "profile": first.get("profile"),
+        "metrics": metrics(workdir),
+    }
     entry["later_runs"] = [describe(r, only_ran=True) for r in later]
     entry["within_limit"] = entry["first_run"]["run_wall_s"] <= LIMIT_S
     return entry
@@ -76,16 +82,17 @@ def main() -> None:
     ap.add_argument("--data", type=Path, required=True, help="folder holding the scenes")
     ap.add_argument("--scenes", nargs="+", required=True)
     ap.add_argument("--workroot", type=Path, required=True)
+    ap.add_argument("--profile", default=None, help="a pipeline.yaml profile (default: the defaults)")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--note", default="", help="what the JSON should say besides (e.g. the runs' code)")
     args = ap.parse_args()
-    scenes = {name: scene_entry(args.data / name, args.workroot / name) for name in args.scenes}
+    scenes = {name: scene_entry(args.data / name, args.workroot / name, args.profile) for name in args.scenes}
     result = {
         "benchmark": "pipeline_wall",
         "limit_s": LIMIT_S,
         "machine": {"cpu": cpu_name(), "cores": os.cpu_count()},
         "code": code_version(),
-        "command": "go-pipeline run SCENE --workdir W/NAME (default settings, empty work dir, idle machine)",
+        "command": "go-pipeline run SCENE --workdir W/NAME [--profile P] (empty work dir, idle machine)",
         "scenes": scenes,
         **({"note": args.note} if args.note else {}),
     }
