@@ -21,20 +21,20 @@ from pathlib import Path
 
 from _machine import code_version, cpu_name
 
+from go_pipeline.commands.runs import load_runs
+from go_pipeline.store import read_manifest
+
 LIMIT_S = 15 * 60  # issue 34: the whole pipeline per dev scene on 2 cores
 
 
 def run_records(workdir: Path) -> list[dict]:
-    """The work dir's finished run records, oldest first."""
-    paths = sorted((workdir / "runs").glob("run-*.json"))
-    records = [json.loads(p.read_text(encoding="utf-8")) for p in paths]
-    return [r for r in records if r.get("status") == "finished"]
+    """The work dir's finished run records, oldest first (``go-pipeline runs``' reader)."""
+    return [r for r in load_runs(workdir) if r.get("status") == "finished"]
 
 
 def step_seconds(step: dict) -> dict:
     """Wall and CPU seconds of one step of a run record, from the manifest of the run that made it."""
-    manifest = Path(step["artifact_dir"]) / "manifest.json"
-    m = json.loads(manifest.read_text(encoding="utf-8")) if manifest.is_file() else {}
+    m = read_manifest(step["artifact_dir"]) or {}
     return {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
 
 
