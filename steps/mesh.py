@@ -3,8 +3,10 @@
 Depth, alpha and colour of the final Gaussians (repaired when available, else coarse) are rendered from the
 training cameras' ellipse and a sphere of views, fused into a TSDF over the visual hull's box, meshed by
 marching cubes (largest component, decimated to ``max_faces``) and coloured per vertex
-(go_core.mesh.extract, docs/geometry.md). Outputs ``model_mesh.ply`` (world frame), ``model.glb`` (glTF 2.0
-binary: centred on the look-at point, the cameras' up as +Y), ``hull_mesh.ply`` (the surface of the
+(go_core.mesh.extract, docs/geometry.md). Outputs ``model_mesh.ply`` (world frame, vertex colours),
+``model.glb`` (glTF 2.0 binary: centred on the look-at point, the cameras' up as +Y; the mesh decimated to
+``texture_faces`` with a texture baked from the model's renders, or with ``texture_size`` 0 the PLY's mesh
+and vertex colours), ``hull_mesh.ply`` (the surface of the
 region every training mask covers, for eval's geometry baseline) and ``mesh.json``.
 """
 
@@ -27,7 +29,7 @@ def run(ctx, inputs: dict[str, Path], params: MeshParams) -> None:
 
     from go_core.camera import fit_ellipse
     from go_core.coarse.hull import hull_bounds
-    from go_core.mesh.extract import mesh_from_gaussians
+    from go_core.mesh.extract import export_meshes
     from go_core.mesh.files import write_glb, write_ply
     from go_core.mesh.hull_mesh import hull_mesh
     from go_core.mesh.settings import MeshSettings
@@ -40,11 +42,11 @@ def run(ctx, inputs: dict[str, Path], params: MeshParams) -> None:
     t0 = time.perf_counter()
     box = hull_bounds(cameras, masks, min_views=len(cameras))
     settings = MeshSettings(**{f.name: getattr(params, f.name) for f in fields(MeshSettings)})
-    mesh, info = mesh_from_gaussians(gaussians, cameras, box, settings, masks)
+    mesh, glb, info = export_meshes(gaussians, cameras, box, settings, masks)
     seconds = info.pop("seconds")
     write_ply(mesh, art.MESH_PLY.path(ctx.out_dir))
     ellipse = fit_ellipse(cameras)
-    write_glb(mesh, art.MESH_GLB.path(ctx.out_dir), up=ellipse.normal, centre=ellipse.target)
+    write_glb(glb, art.MESH_GLB.path(ctx.out_dir), up=ellipse.normal, centre=ellipse.target)
     t1 = time.perf_counter()
     hull = hull_mesh(cameras, masks, params.hull_resolution)
     write_ply(hull, art.HULL_MESH.path(ctx.out_dir))

@@ -295,19 +295,31 @@ def _validator() -> tuple[str, str]:
     node = shutil.which("node")
     if node is None:
         pytest.skip("needs node for the Khronos glTF validator (npm install -g gltf-validator)")
-    roots = []
+    roots = [str(Path(__file__).resolve().parents[1] / "js" / "node_modules")]  # js/: `npm ci` (CI does)
     npm = shutil.which("npm")
     if npm is not None:
         roots.append(subprocess.run([npm, "root", "-g"], capture_output=True, text=True).stdout.strip())
     for root in roots:
         if root and (Path(root) / "gltf-validator").is_dir():
             return node, root
-    pytest.skip("needs the npm package gltf-validator (npm install -g gltf-validator)")
+    pytest.skip("needs the npm package gltf-validator (cd js && npm ci, or npm install -g gltf-validator)")
 
 
-def test_glb_passes_the_khronos_validator(tmp_path):
+def _textured_sphere():
+    from go_core.mesh.texture import TexturedMesh
+
+    mesh = _coloured_sphere()
+    uvs = (0.5 + 0.5 * mesh.vertices[:, :2] / 1.2).clip(0, 1)  # any valid coordinates
+    ramp = np.linspace(0, 255, 16, dtype=np.uint8)
+    texture = np.stack(np.broadcast_arrays(ramp[:, None], ramp[None, :], np.uint8(128)), -1)
+    return TexturedMesh(mesh.vertices, mesh.faces, uvs, np.ascontiguousarray(texture))
+
+
+@pytest.mark.parametrize("kind", ["vertex_colours", "texture"])
+def test_glb_passes_the_khronos_validator(tmp_path, kind):
     node, root = _validator()
-    glb = write_glb(_coloured_sphere(), tmp_path / "m.glb", up=np.array([0, 0, 1.0]), centre=np.zeros(3))
+    mesh = _coloured_sphere() if kind == "vertex_colours" else _textured_sphere()
+    glb = write_glb(mesh, tmp_path / "m.glb", up=np.array([0, 0, 1.0]), centre=np.zeros(3))
     script = (
         "const v = require('gltf-validator'); const fs = require('fs');"
         "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[1])))"

@@ -1,7 +1,8 @@
 """A coloured triangle mesh from a Gaussian model: render depth + alpha + colour from many views (the
 training ellipse and a sphere, go_core.mesh.views), fuse them into a TSDF (go_core.mesh.tsdf) over the
 visual hull's box, run marching cubes, keep the largest component, decimate to a face budget and colour the
-vertices from the fused colours (go_core.mesh.surface). Deterministic: no randomness anywhere."""
+vertices from the fused colours (go_core.mesh.surface); for ``model.glb`` optionally a decimated copy with a
+baked texture atlas (go_core.mesh.texture). Deterministic: no randomness anywhere."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ from go_core.mesh.surface import (
     marching_cubes,
     sample_colours,
 )
+from go_core.mesh.texture import TexturedMesh, textured_mesh
 from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_band
 from go_core.mesh.views import fusion_cameras
 
@@ -189,6 +191,66 @@ def surface(
     return mesh, found, len(raw.faces)
 
 
+def glb_mesh(
+    fused: Fused, mesh: TriMesh, gaussians, train_cameras: list[Camera], settings: MeshSettings
+) -> TriMesh | TexturedMesh:
+    """What ``model.glb`` holds: ``mesh`` itself (vertex colours) when ``settings.texture_size`` is 0, else
+    ``mesh`` decimated to ``settings.texture_faces`` with a texture atlas baked from the fusion cameras'
+    renders at the training cameras' resolution (go_core.mesh.texture); texels no render sees take the
+    colour volume's colour, as the vertices do."""
+    if settings.texture_size <= 0:
+        return mesh
+    tsdf, grid = fused.tsdf, fused.grid
+
+    def volume_colours(points: np.ndarray) -> np.ndarray:
+        return sample_colours(points, tsdf.colour_sums, tsdf.colour_counts, grid.origin, grid.voxel)
+
+    cameras = fusion_cameras(train_cameras, settings.ellipse_views, settings.sphere_views, 0)
+    views = fusion_views(gaussians, cameras, settings)
+    small = decimate(mesh, settings.texture_faces)
+    return textured_mesh(
+        small, views, fused.rule, volume_colours, settings.texture_size, settings.texture_sharpness
+    )
+
+
+def export_meshes(
+    gaussians,
+    train_cameras: list[Camera],
+    box: tuple[np.ndarray, np.ndarray],
+    settings: MeshSettings,
+    masks: list[np.ndarray] | None = None,
+) -> tuple[TriMesh, TriMesh | TexturedMesh, dict]:
+    """``mesh_from_gaussians``'s mesh and summary, with what ``model.glb`` holds (``glb_mesh``) and its
+    counts (``glb``) in the summary."""
+    t0 = time.perf_counter()
+    fused = fuse_gaussians(gaussians, train_cameras, box, settings, masks)
+    t1 = time.perf_counter()
+    mesh, faces_found, faces_kept = surface(fused, settings)
+    t2 = time.perf_counter()
+    glb = glb_mesh(fused, mesh, gaussians, train_cameras, settings)
+    t3 = time.perf_counter()
+    info = _summary(fused, mesh, settings, faces_found, faces_kept)
+    info["glb"] = {"vertices": int(len(glb.vertices)), "faces": int(len(glb.faces))}
+    if isinstance(glb, TexturedMesh):
+        info["glb"]["texture"] = [int(glb.texture.shape[1]), int(glb.texture.shape[0])]
+    info["seconds"] = {"fuse": round(t1 - t0, 3), "surface": round(t2 - t1, 3), "texture": round(t3 - t2, 3)}
+    return mesh, glb, info
+
+
+def _summary(fused: Fused, mesh: TriMesh, settings: MeshSettings, faces_found: int, faces_kept: int) -> dict:
+    return {
+        "settings": asdict(settings),
+        "views": len(fused.views),
+        "grid": list(fused.grid.shape),
+        "voxel": fused.grid.voxel,
+        "truncation": settings.truncation_voxels * fused.grid.voxel,
+        "faces_unseen_dropped": int(faces_found - faces_kept),
+        "faces_before_decimation": int(faces_kept),
+        "vertices": int(len(mesh.vertices)),
+        "faces": int(len(mesh.faces)),
+    }
+
+
 def mesh_from_gaussians(
     gaussians,
     train_cameras: list[Camera],
@@ -203,16 +265,6 @@ def mesh_from_gaussians(
     t1 = time.perf_counter()
     mesh, faces_found, faces_kept = surface(fused, settings)
     t2 = time.perf_counter()
-    info = {
-        "settings": asdict(settings),
-        "views": len(fused.views),
-        "grid": list(fused.grid.shape),
-        "voxel": fused.grid.voxel,
-        "truncation": settings.truncation_voxels * fused.grid.voxel,
-        "faces_unseen_dropped": int(faces_found - faces_kept),
-        "faces_before_decimation": int(faces_kept),
-        "vertices": int(len(mesh.vertices)),
-        "faces": int(len(mesh.faces)),
-        "seconds": {"fuse": round(t1 - t0, 3), "surface": round(t2 - t1, 3)},  # not for artifacts
-    }
+    info = _summary(fused, mesh, settings, faces_found, faces_kept)
+    info["seconds"] = {"fuse": round(t1 - t0, 3), "surface": round(t2 - t1, 3)}  # not for artifacts
     return mesh, info

@@ -1,6 +1,6 @@
 """Mesh files: ``model_mesh.ply`` (binary PLY, world frame, vertex colours), ``model.glb`` (glTF 2.0 binary,
-+Y up as glTF requires, vertex colours as COLOR_0) through trimesh, and the ground-truth ``mesh_world.npz``
-(``vertices`` [V,3], ``faces`` [F,3], the scene's world frame) of the dev scenes."""
++Y up as glTF requires, vertex colours as COLOR_0 or a baked texture) through trimesh, and the ground-truth
+``mesh_world.npz`` (``vertices`` [V,3], ``faces`` [F,3], the scene's world frame) of the dev scenes."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from go_core.mesh.surface import TriMesh
+from go_core.mesh.texture import TexturedMesh
 
 GT_MESH_FILE = "mesh_world.npz"
 
@@ -43,13 +44,31 @@ def write_ply(mesh: TriMesh, path: str | Path) -> Path:
     return atomic_write_bytes(path, data)
 
 
-def write_glb(mesh: TriMesh, path: str | Path, up: np.ndarray, centre: np.ndarray) -> Path:
-    """glTF 2.0 binary: vertices moved so ``centre`` is the origin and turned so ``up`` is +Y."""
+def _textured_trimesh(mesh: TexturedMesh, vertices: np.ndarray):
+    import trimesh
+    from PIL import Image
+
+    visual = trimesh.visual.TextureVisuals(uv=mesh.uvs, image=Image.fromarray(mesh.texture))
+    return trimesh.Trimesh(vertices, mesh.faces, visual=visual, process=False)
+
+
+def write_glb(mesh: TriMesh | TexturedMesh, path: str | Path, up: np.ndarray, centre: np.ndarray) -> Path:
+    """glTF 2.0 binary: vertices moved so ``centre`` is the origin and turned so ``up`` is +Y; vertex
+    colours (COLOR_0) for a ``TriMesh``, a base-colour texture (PNG) for a ``TexturedMesh``."""
     from go_core.io.atomic import atomic_write_bytes
 
     verts = (mesh.vertices - np.asarray(centre, np.float64)) @ up_to_y(up).T
-    data = _trimesh(mesh, verts).export(file_type="glb")
-    return atomic_write_bytes(path, data)
+    tm = _textured_trimesh(mesh, verts) if isinstance(mesh, TexturedMesh) else _trimesh(mesh, verts)
+    return atomic_write_bytes(path, tm.export(file_type="glb"))
+
+
+def read_glb_world(path: str | Path, up: np.ndarray, centre: np.ndarray):
+    """A ``write_glb`` file as a trimesh mesh back in the world frame (its visual as stored)."""
+    import trimesh
+
+    m = trimesh.load(Path(path), file_type="glb", process=False, force="mesh")
+    m.vertices = np.asarray(m.vertices, np.float64) @ up_to_y(up) + np.asarray(centre, np.float64)
+    return m
 
 
 def read_mesh_npz(path: str | Path) -> TriMesh:

@@ -36,5 +36,16 @@ class MeshSettings:
     sphere_views: int = setting(40, ge=0, doc="fusion views on a Fibonacci sphere around the object")
     max_size: int = setting(256, ge=16, doc="longest image side of the fusion renders, px")
     max_faces: int = setting(200_000, ge=0, doc="decimation budget (0: keep every marching-cubes face)")
+    texture_size: int = setting(
+        1024,
+        ge=0,
+        le=8192,
+        doc="model.glb: texels along a side of the square texture atlas baked for it (0: vertex colours on "
+        "the undecimated mesh, as model_mesh.ply)",
+    )
+    texture_faces: int = setting(20_000, ge=100, doc="model.glb with a texture: faces after decimation")
+    texture_sharpness: float = setting(
+        0.5, ge=0, doc="bake weight of a view: cosine between face normal and view ray to this power"
+    )
     batch: int = setting(8, ge=1, doc="cameras rendered per rasterizer call")
     backend: Backend = setting("auto", doc="renderer backend")
