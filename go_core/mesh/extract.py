@@ -222,18 +222,13 @@ def export_meshes(
 ) -> tuple[TriMesh, TriMesh | TexturedMesh, dict]:
     """``mesh_from_gaussians``'s mesh and summary, with what ``model.glb`` holds (``glb_mesh``) and its
     counts (``glb``) in the summary."""
+    fused, mesh, info = _fused_mesh(gaussians, train_cameras, box, settings, masks)
     t0 = time.perf_counter()
-    fused = fuse_gaussians(gaussians, train_cameras, box, settings, masks)
-    t1 = time.perf_counter()
-    mesh, faces_found, faces_kept = surface(fused, settings)
-    t2 = time.perf_counter()
     glb = glb_mesh(fused, mesh, gaussians, train_cameras, settings)
-    t3 = time.perf_counter()
-    info = _summary(fused, mesh, settings, faces_found, faces_kept)
+    info["seconds"]["texture"] = round(time.perf_counter() - t0, 3)
     info["glb"] = {"vertices": int(len(glb.vertices)), "faces": int(len(glb.faces))}
     if isinstance(glb, TexturedMesh):
         info["glb"]["texture"] = [int(glb.texture.shape[1]), int(glb.texture.shape[0])]
-    info["seconds"] = {"fuse": round(t1 - t0, 3), "surface": round(t2 - t1, 3), "texture": round(t3 - t2, 3)}
     return mesh, glb, info
 
 
@@ -251,6 +246,19 @@ def _summary(fused: Fused, mesh: TriMesh, settings: MeshSettings, faces_found: i
     }
 
 
+def _fused_mesh(
+    gaussians, train_cameras: list[Camera], box, settings: MeshSettings, masks
+) -> tuple[Fused, TriMesh, dict]:
+    """``fuse_gaussians``, then ``surface``: the fused field, the mesh and its summary (with ``seconds``)."""
+    t0 = time.perf_counter()
+    fused = fuse_gaussians(gaussians, train_cameras, box, settings, masks)
+    t1 = time.perf_counter()
+    mesh, faces_found, faces_kept = surface(fused, settings)
+    info = _summary(fused, mesh, settings, faces_found, faces_kept)
+    info["seconds"] = {"fuse": round(t1 - t0, 3), "surface": round(time.perf_counter() - t1, 3)}
+    return fused, mesh, info
+
+
 def mesh_from_gaussians(
     gaussians,
     train_cameras: list[Camera],
@@ -260,11 +268,5 @@ def mesh_from_gaussians(
 ) -> tuple[TriMesh, dict]:
     """The coloured surface of ``gaussians`` inside ``box`` (``fuse_gaussians``, then ``surface``) and a
     summary (counts; ``seconds`` per stage, which differ between runs: keep them out of artifacts)."""
-    t0 = time.perf_counter()
-    fused = fuse_gaussians(gaussians, train_cameras, box, settings, masks)
-    t1 = time.perf_counter()
-    mesh, faces_found, faces_kept = surface(fused, settings)
-    t2 = time.perf_counter()
-    info = _summary(fused, mesh, settings, faces_found, faces_kept)
-    info["seconds"] = {"fuse": round(t1 - t0, 3), "surface": round(t2 - t1, 3)}  # not for artifacts
+    _, mesh, info = _fused_mesh(gaussians, train_cameras, box, settings, masks)
     return mesh, info
