@@ -4,8 +4,8 @@ stable names, each written atomically (a temp file renamed into place):
 ```
 model.ply        the final model (export step), INRIA layout
 model.spz        the same model as Niantic .spz (export.formats; also model.splat, model.compressed.ply)
-model.glb        its surface as a coloured mesh, glTF 2.0 binary (mesh step)
-model_mesh.ply   the same mesh as PLY, in the scene's world frame (mesh step)
+model.glb        its surface as a textured mesh, glTF 2.0 binary (mesh step)
+model_mesh.ply   the full mesh (vertex colours) as PLY, in the scene's world frame (mesh step)
 turntable.gif    the turntable (turntable step); turntable.mp4 / camera_path.mp4 when the step made them
 contact_sheet.png  a few turntable frames side by side (turntable step)
 metrics.json     PSNR / SSIM / LPIPS per test view and mean (eval step)
@@ -170,8 +170,8 @@ WHAT = {
     "model.spz": "the model, ~10x smaller (Niantic .spz)",
     "model.splat": "the model for antimatter15-style web viewers (.splat)",
     "model.compressed.ply": "the model, compressed for SuperSplat",
-    "model.glb": "its surface as a coloured mesh (glTF 2.0: Blender, game engines, web pages)",
-    "model_mesh.ply": "the same mesh as .ply, in the scene's world frame",
+    "model.glb": "its surface as a textured mesh (glTF 2.0: Blender, game engines, web pages)",
+    "model_mesh.ply": "the full mesh with vertex colours as .ply, in the scene's world frame",
     "report.html": "the report: metrics, 3D viewer, images (one self-contained file)",
     "turntable.gif": "turntable",
     "turntable.mp4": "turntable (video)",
