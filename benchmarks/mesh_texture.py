@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import torch
 from _final_models import load_final  # benchmarks/ is on sys.path as a script
 from _machine import code_version, cpu_name
 
@@ -31,14 +32,9 @@ from go_core.io.images import composite
 from go_core.mesh.extract import fuse_gaussians, glb_mesh, surface
 from go_core.mesh.files import read_glb_world, write_glb
 from go_core.mesh.settings import MeshSettings
-from go_core.mesh.surface import decimate, sample_colours
+from go_core.mesh.surface import decimate
 from go_core.metrics.mesh_render import render_mesh
-
-
-def psnr(a: np.ndarray, b: np.ndarray, where: np.ndarray | None = None) -> float:
-    err = (a - b) ** 2
-    mse = float(err.mean() if where is None else err[where].mean())
-    return float(-10.0 * np.log10(max(mse, 1e-12)))
+from go_core.metrics.psnr import psnr
 
 
 def score_glb(path: Path, ellipse, scene, supersample: int, pictures: list | None = None) -> dict:
@@ -47,10 +43,10 @@ def score_glb(path: Path, ellipse, scene, supersample: int, pictures: list | Non
     mesh = read_glb_world(path, ellipse.normal, ellipse.target)
     whole, inside = [], []
     for view in scene.test:
-        truth = composite(view.image, view.mask)
+        truth = torch.as_tensor(composite(view.image, view.mask))
         rgb, _ = render_mesh(mesh, view.camera, supersample)
-        whole.append(psnr(rgb, truth))
-        inside.append(psnr(rgb, truth, view.mask > 0.5))
+        whole.append(psnr(torch.as_tensor(rgb), truth))
+        inside.append(psnr(torch.as_tensor(rgb), truth, torch.as_tensor(view.mask > 0.5)))
         if pictures is not None and len(whole) == 1:
             pictures.append(rgb)
     return {
@@ -69,12 +65,10 @@ def measure(scene_dir: Path, gaussians: Path, faces: list[int], texture_size: in
     settings = MeshSettings()
     fused = fuse_gaussians(final.gaussians, final.cameras, final.box, settings, final.masks)
     mesh, _, _ = surface(fused, settings)
-    tsdf, grid = fused.tsdf, fused.grid
     variants, seconds = {"vertex": mesh}, {}
     for n in faces:
         small = decimate(mesh, n)
-        small.colours = sample_colours(small.vertices, tsdf.colour_sums, tsdf.colour_counts, grid.origin,
-                                       grid.voxel)  # fmt: skip
+        small.colours = fused.colours_at(small.vertices)
         variants[f"vertex_{n}"] = small
         for k in sharpness:
             name = f"texture_{n}" + (f"_s{k:g}" if len(sharpness) > 1 else "")

@@ -33,11 +33,12 @@ def render_maps(
     backend: str,
     batch: int,
     depth: str = "expected",
-    free_level: float = 0.05,
+    free_level: float | None = 0.05,
 ):
     """Yield (camera, depth [H,W], alpha [H,W], straight rgb [H,W,3], free depth [H,W]) float32 numpy per
     camera; ``depth`` "expected" (alpha-weighted mean) or "median" (where the opacity reaches 1/2), the free
-    depth where it reaches ``free_level`` (both NaN where it never does)."""
+    depth where it reaches ``free_level`` (both NaN where it never does; None without ``free_level``: one
+    render pass less)."""
     import torch
 
     from go_core.render import render_gaussians
@@ -58,10 +59,12 @@ def render_maps(
                 z = render_median_depth(g, viewmats, Ks, w, h, backend=backend).numpy()
             else:
                 z = out.depth[..., 0].cpu().numpy()
-            free = render_median_depth(g, viewmats, Ks, w, h, level=free_level, backend=backend).numpy()
+            free = None
+            if free_level is not None:
+                free = render_median_depth(g, viewmats, Ks, w, h, level=free_level, backend=backend).numpy()
             rgb = (out.rgb / out.alpha.clamp_min(1e-6)).clamp(0, 1).cpu().numpy()
             for i, cam in enumerate(chunk):
-                yield cam, z[i], alpha[i], rgb[i], free[i]
+                yield cam, z[i], alpha[i], rgb[i], None if free is None else free[i]
 
 
 def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
@@ -74,11 +77,13 @@ def fusion_rule(settings: MeshSettings, voxel: float) -> FusionRule:
     )
 
 
-def fusion_views(gaussians, cameras: list[Camera], settings: MeshSettings) -> list[View]:
-    """The rendered maps of ``gaussians`` from ``cameras`` that the fusion reads."""
-    maps = render_maps(
-        gaussians, cameras, settings.backend, settings.batch, settings.depth, settings.carve_alpha
-    )
+def fusion_views(
+    gaussians, cameras: list[Camera], settings: MeshSettings, free_depth: bool = True
+) -> list[View]:
+    """The rendered maps of ``gaussians`` from ``cameras`` that the fusion reads (without the free depth
+    when ``free_depth`` is false: the surface test, all a bake reads, does not use it)."""
+    free_level = settings.carve_alpha if free_depth else None
+    maps = render_maps(gaussians, cameras, settings.backend, settings.batch, settings.depth, free_level)
     return [View(*m) for m in maps]
 
 
@@ -146,6 +151,11 @@ class Fused:
     rule: FusionRule
     tsdf: Tsdf
 
+    def colours_at(self, points: np.ndarray) -> np.ndarray:
+        """The fused colour volume's colours [N,3] at world ``points`` (surface.sample_colours)."""
+        t, g = self.tsdf, self.grid
+        return sample_colours(points, t.colour_sums, t.colour_counts, g.origin, g.voxel)
+
 
 def fuse_gaussians(
     gaussians,
@@ -185,9 +195,7 @@ def surface(
     if settings.seen_views:
         raw = drop_unseen(raw, fused.views, fused.rule, settings.seen_views)
     mesh = decimate(raw, settings.max_faces)
-    mesh.colours = sample_colours(
-        mesh.vertices, fused.tsdf.colour_sums, fused.tsdf.colour_counts, grid.origin, grid.voxel
-    )
+    mesh.colours = fused.colours_at(mesh.vertices)
     return mesh, found, len(raw.faces)
 
 
@@ -200,16 +208,11 @@ def glb_mesh(
     colour volume's colour, as the vertices do."""
     if settings.texture_size <= 0:
         return mesh
-    tsdf, grid = fused.tsdf, fused.grid
-
-    def volume_colours(points: np.ndarray) -> np.ndarray:
-        return sample_colours(points, tsdf.colour_sums, tsdf.colour_counts, grid.origin, grid.voxel)
-
     cameras = fusion_cameras(train_cameras, settings.ellipse_views, settings.sphere_views, 0)
-    views = fusion_views(gaussians, cameras, settings)
+    views = fusion_views(gaussians, cameras, settings, free_depth=False)
     small = decimate(mesh, settings.texture_faces)
     return textured_mesh(
-        small, views, fused.rule, volume_colours, settings.texture_size, settings.texture_sharpness
+        small, views, fused.rule, fused.colours_at, settings.texture_size, settings.texture_sharpness
     )
 
 

@@ -115,6 +115,8 @@ def bake_colours(
 
     from go_core.mesh.tsdf import PackedView
 
+    if any(v.rgb is None for v in views):
+        raise ValueError("baking needs views rendered with colour")
     packed = [PackedView(v, rule) for v in views]
     centres = [torch.as_tensor(v.camera.center, dtype=torch.float32) for v in views]
     pts = torch.as_tensor(np.asarray(points, np.float32))
@@ -124,8 +126,6 @@ def bake_colours(
     for start in range(0, len(pts), chunk):
         p, n = pts[start : start + chunk], nrm[start : start + chunk]
         for view, centre in zip(packed, centres, strict=True):
-            if view.rgb is None:
-                raise ValueError("baking needs views rendered with colour")
             ray = centre - p
             cos = (ray * n).sum(1) / ray.norm(dim=1).clamp_min(1e-12)
             hit = view.lookup(p, rule)
