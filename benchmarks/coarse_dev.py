@@ -113,7 +113,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 def _lpips_vgg():
     """LPIPS-vgg (the paper's LPIPS; x100 = LPIPS*) from the cache, or None without weights."""
     from go_core.errors import MissingWeightsError
-    from go_core.metrics import LPIPS
+    from go_core.metrics.lpips import LPIPS
 
     try:
         return LPIPS.from_cache("vgg")

@@ -39,7 +39,7 @@ from _machine import code_version  # benchmarks/ is on sys.path as a script
 from go_core.camera import Camera, fit_ellipse, look_at
 from go_core.mesh.files import read_mesh_npz
 from go_core.mesh.hull_mesh import hull_mesh
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 from go_core.mesh.views import fibonacci_directions
 from go_core.metrics.geometry import bounding_radius, geometry_metrics, silhouette
 from go_core.scene.loader import load_scene

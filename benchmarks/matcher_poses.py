@@ -27,7 +27,7 @@ from go_core.errors import PoseCheckError
 from go_core.poses.check import check_poses
 from go_core.poses.sfm import reconstruct
 from go_core.poses.verify import verify_poses
-from go_core.scene import load_scene
+from go_core.scene.loader import load_scene
 
 MATCHERS = ("sift", "disk")
 

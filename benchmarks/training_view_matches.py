@@ -60,7 +60,7 @@ def scene_pairs(scene_dir: Path, max_keypoints: int, dilate_px: int, px: float, 
 
     from go_core.features.weights import load_disk, load_lightglue
     from go_core.poses.matching import disk_features
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
 
     scene = load_scene(scene_dir)
     mesh = np.load(scene_dir / "mesh_world.npz")

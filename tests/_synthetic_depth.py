@@ -63,7 +63,7 @@ def cube_depth(cam: Camera, half: float) -> tuple[np.ndarray, np.ndarray]:
 
 def box_mesh(half: float):
     """The cube [-half, half]^3 as 12 outward-facing triangles."""
-    from go_core.mesh.surface import TriMesh
+    from go_core.mesh.types import TriMesh
 
     v = np.array([[x, y, z] for x in (-half, half) for y in (-half, half) for z in (-half, half)], np.float64)
     f = [

@@ -12,7 +12,8 @@ from _scene_helpers import disk_rgba, edit_json, write_colmap_scene, write_nerf_
 
 from go_core.errors import GoError, SceneError
 from go_core.io.images import write_png
-from go_core.scene import load_scene, validate_scene
+from go_core.scene.loader import load_scene
+from go_core.scene.validate import validate_scene
 
 
 @pytest.fixture

@@ -79,6 +79,36 @@ def test_editing_a_library_module_changes_exactly_the_steps_that_import_it(go_co
     ]
 
 
+ALL_STEPS = [
+    "scene", "mask", "depth", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "export",
+    "mesh", "turntable", "eval",
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("module", "steps"),
+    [
+        # the mesh algorithms: only the steps that make or measure meshes (the scene step reads a
+        # ground-truth mesh through go_core.mesh.files and go_core.mesh.types alone)
+        ("mesh/texture.py", {"mesh"}),
+        ("mesh/tsdf.py", {"mesh"}),
+        ("mesh/surface.py", {"mesh"}),
+        # the photo route's SfM and the matcher: only the ingest, not every step that reads its artifact
+        ("photos/sfm.py", {"scene"}),
+        ("features/lightglue.py", {"scene"}),
+        ("scene/loader.py", {"scene"}),
+        # the evaluation protocol: eval alone, not the tuning and the repair that use one metric each
+        ("metrics/evaluate.py", {"eval"}),
+    ],
+)
+def test_editing_a_stage_module_reruns_only_the_steps_that_import_it(go_core_copy, module, steps):
+    before = {s: codehash.fingerprint(f"go_pipeline.steps.{s}").digest for s in ALL_STEPS}
+    path = go_core_copy / module
+    path.write_text(path.read_text() + "\n# a comment is a change too\n")
+    after = {s: codehash.fingerprint(f"go_pipeline.steps.{s}").digest for s in ALL_STEPS}
+    assert {s for s in ALL_STEPS if before[s] != after[s]} == steps
+
+
 def test_editing_a_kernel_source_changes_the_steps_that_load_the_extension(go_core_copy):
     before = _digests()
     kernel = go_core_copy / "kernels" / "csrc" / "adam.cpp"

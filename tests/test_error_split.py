@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from go_core.camera import look_at
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 from go_core.metrics.error_split import (
     REGIONS,
     SeenSurface,

@@ -99,7 +99,7 @@ def test_learned_matcher_checks_the_example_scene(nets):
     the 3 test views nearest it (160 px): every view verified (SIFT verifies none of them), nothing
     flagged; a view turned 5° is caught."""
     from go_core.poses.check import check_poses
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "go_pipeline" / "examples" / "basket")
     views = [scene.train[0], *(v for v in scene.test if v.name in ("test_r_0", "test_r_6", "test_r_7"))]
@@ -116,7 +116,7 @@ def test_learned_check_of_a_symmetric_bowl(nets, shared_data):
     DISK + LightGlue match to itself. The silhouettes refute the turns those matches ask for, so nothing is
     flagged (8 correct views were before); with test_r_14 turned 2° that view alone is flagged."""
     from go_core.poses.check import check_poses
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
 
     scene = load_scene(shared_data / "dev" / "white_bowl")
     views = scene.train + scene.test
@@ -148,7 +148,7 @@ def test_learned_estimate_of_a_real_capture(nets, shared_data):
     24-176° off. With the estimate's floor the views it registers are right (0.4-1.9° each in the
     benchmark; < 5° between every pair) and the ones it cannot register are named: refused, not wrong."""
     from go_core.poses.estimate import estimate_poses
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
 
     scene = load_scene(shared_data / "real" / "ethiopian_head")
     views = scene.train + scene.test

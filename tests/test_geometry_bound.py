@@ -10,7 +10,7 @@ from _benchmark_module import benchmark_module
 from _ellipsoids import SIZE, ring_cameras
 
 from go_core.camera import look_at
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 from go_core.metrics.geometry import geometry_metrics
 
 HALF = 0.5

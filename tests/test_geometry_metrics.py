@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 from go_core.metrics.geometry import bounding_radius, geometry_metrics, silhouette_iou
 from tests._synthetic_depth import ring_cameras, sphere_depth
 

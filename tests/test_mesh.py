@@ -16,8 +16,9 @@ from go_core.errors import CollapsedModelError
 from go_core.mesh.extract import clip_to_hull, drop_unseen, seen_counts, seen_vertices
 from go_core.mesh.files import read_ply, write_glb, write_ply
 from go_core.mesh.hull_mesh import hull_mesh
-from go_core.mesh.surface import TriMesh, decimate, largest_component, marching_cubes
+from go_core.mesh.surface import decimate, largest_component, marching_cubes
 from go_core.mesh.tsdf import FusionRule, View, VoxelGrid, fuse_narrow_band, fuse_views
+from go_core.mesh.types import TriMesh
 from go_core.metrics.geometry import geometry_metrics
 from tests._synthetic_depth import box_mesh, cube_depth, ring_cameras, sphere_cameras_around, sphere_depth
 
@@ -306,7 +307,7 @@ def _validator() -> tuple[str, str]:
 
 
 def _textured_sphere():
-    from go_core.mesh.texture import TexturedMesh
+    from go_core.mesh.types import TexturedMesh
 
     mesh = _coloured_sphere()
     uvs = (0.5 + 0.5 * mesh.vertices[:, :2] / 1.2).clip(0, 1)  # any valid coordinates

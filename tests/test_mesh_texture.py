@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from go_core.mesh.files import read_glb_world, write_glb
-from go_core.mesh.surface import TriMesh, marching_cubes
+from go_core.mesh.surface import marching_cubes
 from go_core.mesh.texture import dilate_texture, texel_samples, textured_mesh
 from go_core.mesh.tsdf import FusionRule, View
+from go_core.mesh.types import TriMesh
 from tests._synthetic_depth import _rays, ring_cameras, sphere_cameras_around, sphere_depth
 
 RADIUS = 0.8

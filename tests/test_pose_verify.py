@@ -148,7 +148,7 @@ def test_estimate_command_refuses_degenerate_results(tmp_path, monkeypatch, caps
 
 def test_estimate_command_writes_verified_poses_loadable_as_a_scene(tmp_path, monkeypatch, four):
     import go_core.poses.sfm as sfm
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
     from go_pipeline.cli import main
 
     cams, masks = four
@@ -172,7 +172,7 @@ def test_estimate_command_writes_verified_poses_loadable_as_a_scene(tmp_path, mo
 
 def test_plain_photos_error_points_at_estimate(tmp_path, four):
     from go_core.errors import SceneError
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
 
     _write_rgba(tmp_path / "photos", four[1])
     with pytest.raises(SceneError, match=r"4 photos without poses: .*go-pipeline poses .* --estimate"):

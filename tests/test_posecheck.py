@@ -13,7 +13,7 @@ from go_core.poses.epipolar import epipolar_distances
 from go_core.poses.sfm import reconstruct
 from go_core.poses.similarity import umeyama
 from go_core.poses.tracks import build_tracks, leave_one_out_errors, triangulate_dlt
-from go_core.scene import load_scene
+from go_core.scene.loader import load_scene
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from go_pipeline.reporting.viewer import mesh_record, viewer_bundle, viewer_html
 @pytest.fixture
 def mesh_ply(tmp_path):
     from go_core.mesh.files import write_ply
-    from go_core.mesh.surface import TriMesh
+    from go_core.mesh.types import TriMesh
 
     verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float64)
     faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], np.int64)

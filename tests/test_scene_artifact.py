@@ -11,8 +11,14 @@ import numpy as np
 import pytest
 from _scene_helpers import write_colmap_scene
 
-from go_core.scene import load_scene, load_scene_artifact, load_scene_cameras, save_scene_artifact
-from go_core.scene.artifact import Ingest, read_scene_manifest
+from go_core.scene.artifact import (
+    Ingest,
+    load_scene_artifact,
+    load_scene_cameras,
+    read_scene_manifest,
+    save_scene_artifact,
+)
+from go_core.scene.loader import load_scene
 from go_pipeline.pipeline import step_params
 
 SCHEMA = Path(__file__).resolve().parents[1] / "data_schema" / "scene_manifest.schema.json"

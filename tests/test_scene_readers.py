@@ -11,8 +11,9 @@ from _scene_helpers import ring_cameras, write_colmap_model, write_colmap_scene,
 
 from go_core.camera import Camera
 from go_core.io.images import read_image, write_png
-from go_core.scene import load_scene, validate_scene
 from go_core.scene.common import farthest_point_choice
+from go_core.scene.loader import load_scene
+from go_core.scene.validate import validate_scene
 
 
 @pytest.fixture(scope="module")

@@ -14,16 +14,10 @@ import numpy as np
 from go_core.camera import Camera
 from go_core.mesh.hull_mesh import hull_field
 from go_core.mesh.settings import MeshSettings
-from go_core.mesh.surface import (
-    TriMesh,
-    compact,
-    decimate,
-    largest_component,
-    marching_cubes,
-    sample_colours,
-)
-from go_core.mesh.texture import TexturedMesh, textured_mesh
+from go_core.mesh.surface import compact, decimate, largest_component, marching_cubes, sample_colours
+from go_core.mesh.texture import textured_mesh
 from go_core.mesh.tsdf import FusionRule, Tsdf, View, VoxelGrid, fuse_narrow_band
+from go_core.mesh.types import TexturedMesh, TriMesh
 from go_core.mesh.views import fusion_cameras
 
 

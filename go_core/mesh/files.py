@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from go_core.mesh.surface import TriMesh
-from go_core.mesh.texture import TexturedMesh
+from go_core.mesh.types import TexturedMesh, TriMesh
 
 GT_MESH_FILE = "mesh_world.npz"
 

@@ -11,8 +11,9 @@ import numpy as np
 
 from go_core.camera import Camera
 from go_core.coarse.hull import bilinear, hull_bounds
-from go_core.mesh.surface import TriMesh, largest_component, marching_cubes
+from go_core.mesh.surface import largest_component, marching_cubes
 from go_core.mesh.tsdf import VoxelGrid
+from go_core.mesh.types import TriMesh
 
 
 def hull_field(

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 
 
 def shaded(mesh: TriMesh, camera, use_colours: bool = False, background: int = 255) -> np.ndarray:

@@ -3,35 +3,9 @@ to a face budget (fast-simplification) and vertex colours sampled from a colour 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-
-@dataclass
-class TriMesh:
-    """vertices [V,3] float64 (world), faces [F,3] int64 (counter-clockwise seen from outside), colours
-    [V,3] float32 in [0,1] or None."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    colours: np.ndarray | None = None
-
-    def face_normals(self) -> np.ndarray:
-        """Unit normals [F,3] (zero for degenerate faces)."""
-        tri = self.vertices[self.faces]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        length = np.linalg.norm(n, axis=1, keepdims=True)
-        return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-
-    def areas(self) -> np.ndarray:
-        tri = self.vertices[self.faces]
-        return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-
-    def volume(self) -> float:
-        """Signed enclosed volume (positive for a closed mesh with outward normals)."""
-        tri = self.vertices[self.faces]
-        return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0)
+from go_core.mesh.types import TriMesh
 
 
 def marching_cubes(field: np.ndarray, origin: np.ndarray, voxel: float, level: float = 0.0) -> TriMesh:

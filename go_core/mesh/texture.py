@@ -16,26 +16,14 @@ UV convention (trimesh's, which its glTF export converts): u to the right, v up,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TexturedMesh, TriMesh
 
 if TYPE_CHECKING:
     from go_core.mesh.tsdf import FusionRule, View
-
-
-@dataclass
-class TexturedMesh:
-    """Vertices [V,3] (a vertex per chart corner: xatlas splits seams), faces [F,3], texture coordinates
-    ``uvs`` [V,2] in [0, 1] (v up) and the ``texture`` [H,W,3] uint8 (row 0 at the top: v = 1)."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    uvs: np.ndarray
-    texture: np.ndarray
 
 
 def unwrap(mesh: TriMesh, resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
@@ -186,4 +174,4 @@ def textured_mesh(
     return TexturedMesh(vertices, faces, uvs, image)
 
 
-__all__ = ["TexturedMesh", "bake_colours", "dilate_texture", "textured_mesh", "texel_samples", "unwrap"]
+__all__ = ["bake_colours", "dilate_texture", "textured_mesh", "texel_samples", "unwrap"]

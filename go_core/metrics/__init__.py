@@ -1,20 +1,9 @@
-"""Image-quality metrics: PSNR, SSIM (the 3DGS window, shared with the training loss), LPIPS v0.1 with
-genuine weights (AlexNet / VGG16, pure torch), and the evaluation protocol that combines them."""
+"""Image-quality metrics: PSNR (``psnr``), SSIM (``ssim``: the 3DGS window, shared with the training loss),
+LPIPS v0.1 with genuine weights (``lpips``, ``lpips_weights``: AlexNet / VGG16, pure torch), the evaluation
+protocol that combines them (``evaluate``), and the geometry metrics (``geometry``, ``error_split``,
+``mesh_render``).
 
-from go_core.metrics.evaluate import MetricSuite, composite, error_map, mean_metrics
-from go_core.metrics.lpips import LPIPS, lpips_distance
-from go_core.metrics.lpips_weights import fetch_lpips_weights
-from go_core.metrics.psnr import psnr
-from go_core.metrics.ssim import ssim
-
-__all__ = [
-    "LPIPS",
-    "MetricSuite",
-    "composite",
-    "error_map",
-    "fetch_lpips_weights",
-    "lpips_distance",
-    "mean_metrics",
-    "psnr",
-    "ssim",
-]
+This package's ``__init__`` imports nothing: import from the module. A step that needs one metric (the
+restorer choice's PSNR, the repair's LPIPS loss) then does not carry the evaluation protocol in its cache
+key (go_pipeline.codehash), so changing how eval scores does not rerun the tuning and the repair.
+"""

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 
 REGIONS = ("outside", "seen", "unseen")
 SEEN_TOLERANCE = 0.01  # of the mesh's bounding radius: a point this close to a seen face's plane is seen

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from go_core.mesh.surface import TriMesh
+from go_core.mesh.types import TriMesh
 from go_core.seeding import numpy_rng
 
 SAMPLES = 100_000

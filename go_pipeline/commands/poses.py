@@ -162,7 +162,7 @@ def main(args: argparse.Namespace) -> int:
         matcher = args.matcher
         return estimate(args.scene, args.estimate, args.threads, args.allow_unregistered, args.json, matcher)
     from go_core.poses.check import check_poses
-    from go_core.scene import load_scene
+    from go_core.scene.loader import load_scene
 
     scene = load_scene(args.scene)
     views = {"train": scene.train, "test": scene.test, "all": scene.train + scene.test}[args.split]
