@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from go_pipeline.store import read_manifest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -103,8 +105,7 @@ def step_times(summary) -> dict:
     manifest keeps the run that made them)."""
     out = {}
     for step in summary.steps:
-        path = Path(step.artifact_dir) / "manifest.json"
-        m = json.loads(path.read_text()) if path.exists() else {}
+        m = read_manifest(step.artifact_dir) or {}
         out[step.name] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
     return out
 

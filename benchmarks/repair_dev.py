@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from go_pipeline.store import read_manifest
+
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34, docs/repair_prior.md)
 PRIOR2 = "go-repair-prior-2"  # the same prior trained on, to 8000 steps (cosine learning rate)
@@ -68,11 +70,6 @@ VARIANTS = {
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")
 STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "eval")
-
-
-def _manifest(artifact_dir: Path) -> dict:
-    path = Path(artifact_dir) / "manifest.json"
-    return json.loads(path.read_text()) if path.exists() else {}
 
 
 def loo_pair_psnr(loo_dir: Path) -> float:
@@ -209,7 +206,7 @@ def main() -> None:
             }
             if variant == "full":
                 for step in STEPS:
-                    m = _manifest(summary.step(step).artifact_dir)
+                    m = read_manifest(summary.step(step).artifact_dir) or {}
                     entry["steps"][step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
                 entry["lora"] = summary.step("tune").record
                 entry["loo_pair_psnr"] = loo_pair_psnr(summary.step("loo").artifact_dir)
