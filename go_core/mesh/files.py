@@ -10,8 +10,6 @@ import numpy as np
 
 from go_core.mesh.types import TexturedMesh, TriMesh
 
-GT_MESH_FILE = "mesh_world.npz"
-
 
 def _trimesh(mesh: TriMesh, vertices: np.ndarray | None = None):
     import trimesh
