@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
 
 from go_pipeline.store import read_manifest
 
@@ -169,16 +170,26 @@ def main() -> None:
     for item in args.overrides:
         key, value = item.split("=", 1)
         common[key] = yaml.safe_load(value)
+    import torch
+
+    command = "python benchmarks/repair_dev.py " + " ".join(os.sys.argv[1:])
     result: dict = {
-        "command": "python benchmarks/repair_dev.py " + " ".join(os.sys.argv[1:]),
+        "command": command,
+        "commands": [],  # every invocation that wrote this file, in order, with its code and machine
         "machine": platform.processor() or platform.machine(),
+        "cpu": cpu_name(),
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
         "cpu_count": os.cpu_count(),
         "load_average_start": os.getloadavg(),
         "overrides": common,
         "scenes": {},
     }
-    if args.out.exists():  # resume: keep scenes measured by an earlier invocation
-        result["scenes"] = json.loads(args.out.read_text()).get("scenes", {})
+    if args.out.exists():  # resume: keep scenes measured by an earlier invocation, and its command
+        earlier = json.loads(args.out.read_text())
+        result["scenes"] = earlier.get("scenes", {})
+        result["commands"] = earlier.get("commands") or [earlier["command"]] * ("command" in earlier)
+    result["commands"].append(f"{command} (code {code_version()}, {result['cpu']}, torch {result['torch']})")
     for name in args.scenes:
         scene_dir = args.data / name
         workdir = args.workroot / name
