@@ -13,7 +13,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               default); prior2_pretrained: not tuned; prior2_tune60: tuned for 60 steps instead of 400;
               prior2_pretrained_alpha: not tuned, its alpha as a mask target; noref_pretrained:
               go-repair-prior-1-noref not tuned; prior3_pretrained: go-repair-prior-3, not tuned;
-              prior4_pretrained: go-repair-prior-4, not tuned; prior4: tuned; prior4_inside: tuned with
+              prior4_pretrained: go-repair-prior-4, not tuned (prior4_pretrained_alpha: with its alpha as
+              a mask target); prior4: tuned; prior4_inside: tuned with
               the RGB loss inside the training masks only (tune.compact_region inside)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
@@ -65,6 +66,11 @@ VARIANTS = {
     "noref_pretrained": {"weights.compact_model": PRIOR + "-noref", "tune.finetune": False},
     "prior3_pretrained": {"weights.compact_model": PRIOR3, "tune.finetune": False},
     "prior4_pretrained": {"weights.compact_model": PRIOR4, "tune.finetune": False},
+    "prior4_pretrained_alpha": {  # the same, with its predicted alpha as a mask target
+        "weights.compact_model": PRIOR4,
+        "tune.finetune": False,
+        "repair.alpha_weight": 1.0,
+    },
     "prior4": {"weights.compact_model": PRIOR4},  # tuned 400 steps, the RGB loss over the whole view
     "prior4_inside": {"weights.compact_model": PRIOR4, "tune.compact_region": "inside"},
 }
