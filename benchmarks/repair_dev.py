@@ -194,7 +194,7 @@ def main() -> None:
     if args.out.exists():  # resume: keep scenes measured by an earlier invocation, and its command
         earlier = json.loads(args.out.read_text())
         result["scenes"] = earlier.get("scenes", {})
-        result["commands"] = earlier.get("commands") or [earlier["command"]] * ("command" in earlier)
+        result["commands"] = earlier.get("commands") or ([earlier["command"]] if "command" in earlier else [])
     result["commands"].append(f"{command} (code {code_version()}, {result['cpu']}, torch {result['torch']})")
     for name in args.scenes:
         scene_dir = args.data / name
