@@ -166,6 +166,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--sheets", type=Path, default=None, help="folder for <scene>_repair_sheet.jpg")
     ap.add_argument("--sheet-views", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=0, help="the runs' seed (one per --out file)")
     args = ap.parse_args()
 
     import yaml
@@ -189,10 +190,13 @@ def main() -> None:
         "cpu_count": os.cpu_count(),
         "load_average_start": os.getloadavg(),
         "overrides": common,
+        "seed": args.seed,
         "scenes": {},
     }
     if args.out.exists():  # resume: keep scenes measured by an earlier invocation, and its command
         earlier = json.loads(args.out.read_text())
+        if earlier.get("seed", 0) != args.seed:
+            raise SystemExit(f"{args.out}: its runs are at seed {earlier.get('seed', 0)}, not {args.seed}")
         result["scenes"] = earlier.get("scenes", {})
         result["commands"] = earlier.get("commands") or ([earlier["command"]] if "command" in earlier else [])
     result["commands"].append(f"{command} (code {code_version()}, {result['cpu']}, torch {result['torch']})")
@@ -203,7 +207,11 @@ def main() -> None:
         for variant in args.variants:
             t0 = time.perf_counter()
             summary = run_pipeline(
-                scene_dir, workdir=workdir, overrides={**common, **VARIANTS[variant]}, quiet=True
+                scene_dir,
+                workdir=workdir,
+                overrides={**common, **VARIANTS[variant]},
+                seed=args.seed,
+                quiet=True,
             )
             metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
             mean = metrics["mean"]
