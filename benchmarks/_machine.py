@@ -8,14 +8,19 @@ from pathlib import Path
 
 
 def cpu_name() -> str:
-    """The CPU model from /proc/cpuinfo, else what the platform module knows."""
+    """The CPU model from /proc/cpuinfo with its family and model numbers (VMs often show only a brand
+    name, e.g. "AMD EPYC", for CPUs of different speeds), else what the platform module knows."""
+    fields: dict[str, str] = {}
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
+            key, _, value = line.partition(":")
+            fields.setdefault(key.strip(), value.strip())
     except OSError:
         pass
-    return platform.processor() or platform.machine()
+    if "model name" not in fields:
+        return platform.processor() or platform.machine()
+    family, model = fields.get("cpu family", "?"), fields.get("model", "?")
+    return f"{fields['model name']} (family {family}, model {model})"
 
 
 def code_version() -> str:

@@ -224,15 +224,18 @@ def main(argv=None) -> int:
         print(markdown_table(json.loads(args.out.read_text())))
         return 0
 
+    from _machine import code_version, cpu_name
+
     from go_core.metrics.evaluate import MetricSuite
 
     suite = MetricSuite.load(("vgg", "alex"))
     variants = [parse_variant(v) for v in (args.variant or ["defaults"])]
     result = json.loads(args.out.read_text()) if args.out.exists() else {"captures": {}}
+    command = "python benchmarks/real_captures.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    result.setdefault("commands", []).append(f"{command} (code {code_version()}, {cpu_name()})")
     result.update(
         {
-            "command": "python benchmarks/real_captures.py "
-            + " ".join(sys.argv[1:] if argv is None else argv),
+            "command": command,
             "machine": platform.processor() or platform.machine(),
             "threads": os.environ.get("OMP_NUM_THREADS", "unset"),
             "photo_size": args.photo_size,

@@ -4,7 +4,7 @@ every fold is tuned and scored as the tune step does now (``_prior_outputs``, ``
 restorer, the prior as shipped and the mean of both. The record is the one the tune step would write
 (``choice_record``), so runs made before a score was added can say what the rule would choose.
 
-    python benchmarks/restorer_folds.py --work milk=W/milk basket=W/basket --out OUT.json
+    python benchmarks/restorer_folds.py --work milk=W/milk basket=W/basket --out OUT.json [--fold-steps N]
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def tune_artifact(work: Path) -> Path:
     return max(found, key=lambda d: json.loads((d / "manifest.json").read_text())["finished"])
 
 
-def score(work: Path) -> dict:
+def score(work: Path, fold_steps: int | None = None) -> dict:
     from go_pipeline.steps import _repair_models as rm
     from go_pipeline.steps.params import TuneParams
     from go_pipeline.steps.weights import compact_info
@@ -42,6 +42,8 @@ def score(work: Path) -> dict:
     known = {f.name for f in dataclasses.fields(TuneParams)}
     given = {k: tuple(v) if isinstance(v, list) else v for k, v in manifest["params"].items() if k in known}
     params = TuneParams(**given)
+    if fold_steps is not None:  # a cheaper fold: fewer tuning steps (the tune step's final tuning unchanged)
+        params = dataclasses.replace(params, compact_steps=fold_steps)
     name = compact_info(inputs)["name"]
     _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     held = rm.held_out_pairs(inputs)
@@ -53,6 +55,7 @@ def score(work: Path) -> dict:
         "tune_artifact": str(tune_dir),
         "recorded": json.loads((tune_dir / "tune.json").read_text())["choice"],
         "scored": choice_record(folds, name, params.prior_choice),
+        "fold_steps": params.compact_steps,
         "seconds": round(time.perf_counter() - start, 1),
     }
 
@@ -61,12 +64,13 @@ def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", nargs="+", required=True, help="NAME=WORKDIR")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--fold-steps", type=int, default=None, help="tuning steps per fold (default: the run's)")
     args = ap.parse_args(argv)
     out = json.loads(args.out.read_text()) if args.out.is_file() else {"commands": [], "scenes": {}}
     out["commands"].append(f"python benchmarks/restorer_folds.py {' '.join(argv)} (code {code_version()})")
     for item in args.work:
         name, work = item.split("=", 1)
-        out["scenes"][name] = score(Path(work))
+        out["scenes"][name] = score(Path(work), args.fold_steps)
         s = out["scenes"][name]["scored"]
         print(
             name,
