@@ -42,8 +42,8 @@ def score(work: Path, fold_steps: int | None = None) -> dict:
     known = {f.name for f in dataclasses.fields(TuneParams)}
     given = {k: tuple(v) if isinstance(v, list) else v for k, v in manifest["params"].items() if k in known}
     params = TuneParams(**given)
-    if fold_steps is not None:  # a cheaper fold: fewer tuning steps (the tune step's final tuning unchanged)
-        params = dataclasses.replace(params, compact_steps=fold_steps)
+    if fold_steps is not None:  # tune.choice_steps: each fold's tuning steps (at most compact_steps)
+        params = dataclasses.replace(params, choice_steps=fold_steps)
     name = compact_info(inputs)["name"]
     _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
     held = rm.held_out_pairs(inputs)
@@ -55,7 +55,7 @@ def score(work: Path, fold_steps: int | None = None) -> dict:
         "tune_artifact": str(tune_dir),
         "recorded": json.loads((tune_dir / "tune.json").read_text())["choice"],
         "scored": choice_record(folds, name, params.prior_choice),
-        "fold_steps": params.compact_steps,
+        "fold_steps": rm.fold_tune_settings(params).steps,
         "seconds": round(time.perf_counter() - start, 1),
     }
 
@@ -64,7 +64,7 @@ def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", nargs="+", required=True, help="NAME=WORKDIR")
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--fold-steps", type=int, default=None, help="tuning steps per fold (default: the run's)")
+    ap.add_argument("--fold-steps", type=int, default=None, help="tune.choice_steps (default: the run's)")
     args = ap.parse_args(argv)
     out = json.loads(args.out.read_text()) if args.out.is_file() else {"commands": [], "scenes": {}}
     out["commands"].append(f"python benchmarks/restorer_folds.py {' '.join(argv)} (code {code_version()})")

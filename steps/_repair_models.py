@@ -74,6 +74,13 @@ def compact_tune_settings(params: TuneParams):
     )
 
 
+def fold_tune_settings(params: TuneParams):
+    """A held-out fold's tuning settings: the final tuning's, for ``choice_steps`` steps at most (a fold only
+    has to rank the tuned restorer against the prior, not to be the restorer that repairs)."""
+    settings = compact_tune_settings(params)
+    return replace(settings, steps=min(params.choice_steps, settings.steps))
+
+
 class CompactModel:
     """The compact restorer: a full fine-tune (or LoRA on its convolutions) with L1 and Adam."""
 
@@ -254,7 +261,7 @@ def _fold_score(
     from go_core.repair.pairs import pair_tensors
     from go_core.seeding import derive_seed
 
-    settings = compact_tune_settings(params)
+    settings = fold_tune_settings(params)
     source = _pair_source(inputs, params, views)
 
     def draw(rng, gen):

@@ -209,6 +209,12 @@ class TuneParams:
         doc="compact: a repair prior that repairs as shipped instead of the tuned restorer where it restores "
         "the held-out leave-one-out views better ('' never; docs/real_captures.md, docs/repair_prior.md)",
     )
+    choice_steps: int = setting(
+        200,
+        ge=1,
+        doc="compact: tuning steps of each held-out fold of prior_choice, at most compact_steps (the final "
+        "tuning's steps; docs/real_captures.md, 'Cheaper folds')",
+    )
     backend: Backend = "auto"
 
 

@@ -151,6 +151,24 @@ def test_a_step_killed_between_folds_tunes_only_the_folds_left(
     assert len(calls) == 1 + (whole["chosen"] == TUNED)  # fold 0, then the final tuning if it is needed
 
 
+@pytest.mark.parametrize(("choice_steps", "fold_steps"), [(2, 2), (50, LORA["compact_steps"])])
+def test_each_fold_tunes_choice_steps_and_never_more_than_the_final_tuning(
+    upstream, tmp_path, tiny_cache, tiny_prior, monkeypatch, choice_steps, fold_steps
+):
+    """The folds tune ``tune.choice_steps`` steps, capped at ``compact_steps``; the final tuning (where the
+    tuned restorer is kept) tunes ``compact_steps`` whatever the folds did."""
+    from go_core.compact import tuning
+
+    steps = []
+    real = tuning.tune_compact
+    monkeypatch.setattr(tuning, "tune_compact", lambda *a, **k: steps.append(a[3].steps) or real(*a, **k))
+    _, dirs = upstream
+    ctx = _tune(tmp_path, dirs, {**CHOICE, "choice_steps": choice_steps})
+    choice = json.loads((ctx.out_dir / "tune.json").read_text())["choice"]
+    final = [LORA["compact_steps"]] if choice["chosen"] == TUNED else []
+    assert steps == [fold_steps] * len(choice["folds"]) + final
+
+
 @pytest.mark.parametrize(
     ("scores", "chosen", "second"),
     [
