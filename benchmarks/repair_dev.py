@@ -10,12 +10,15 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               (repair.alpha_weight=1); prior_pretrained: not tuned; prior_no_alpha: alpha_weight 0;
               prior_no_reference: the prior trained without the reference input (go-repair-prior-1-noref)
   prior2      go-repair-prior-2 (go-repair-prior-1 trained on to 8000 steps), tuned, alpha_weight 0 (the
-              default); prior2_pretrained: not tuned; prior2_tune60: tuned for 60 steps instead of 400;
+              default until 2026-12-05, kept in these variants as measured); prior2_pretrained: not
+              tuned; prior2_tune60: tuned for 60 steps instead of 400;
               prior2_pretrained_alpha: not tuned, its alpha as a mask target; noref_pretrained:
               go-repair-prior-1-noref not tuned; prior3_pretrained: go-repair-prior-3, not tuned;
               prior4_pretrained: go-repair-prior-4, not tuned (prior4_pretrained_alpha: with its alpha as
               a mask target); prior4: tuned; prior4_inside: tuned with
               the RGB loss inside the training masks only (tune.compact_region inside)
+  no_alpha_target  ablation "without the alpha target": repair.alpha_weight=0, so a repair prior's alpha is
+              no mask target where it repairs either model (elsewhere the same bytes as full)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
@@ -46,6 +49,7 @@ PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34,
 PRIOR2 = "go-repair-prior-2"  # the same prior trained on, to 8000 steps (cosine learning rate)
 PRIOR3 = "go-repair-prior-3"  # prior-2 fine-tuned with the object's pixels weighted up (--inside-weight)
 PRIOR4 = "go-repair-prior-4"  # prior-3 fine-tuned with pairs at the training views (--train-view-share)
+NO_ALPHA = {"repair.alpha_weight": 0.0}  # as the variants below were measured: the default until 2026-12-05
 VARIANTS = {
     "full": {},
     "pretrained": {"tune.finetune": False},
@@ -55,24 +59,39 @@ VARIANTS = {
     "prior_pretrained": {"weights.compact_model": PRIOR, "tune.finetune": False, "repair.alpha_weight": 1.0},
     "prior_no_alpha": {"weights.compact_model": PRIOR, "repair.alpha_weight": 0.0},
     "prior_no_reference": {"weights.compact_model": PRIOR + "-noref", "repair.alpha_weight": 1.0},
-    "prior2": {"weights.compact_model": PRIOR2},  # tuned, at the default alpha_weight (0)
-    "prior2_pretrained": {"weights.compact_model": PRIOR2, "tune.finetune": False},
-    "prior2_tune60": {"weights.compact_model": PRIOR2, "tune.compact_steps": 60},  # a short tuning
+    "prior2": {"weights.compact_model": PRIOR2, "repair.alpha_weight": 0.0},  # tuned, as measured (weight 0)
+    "prior2_pretrained": {"weights.compact_model": PRIOR2, "tune.finetune": False, **NO_ALPHA},
+    "prior2_tune60": {  # a short tuning
+        "weights.compact_model": PRIOR2,
+        "tune.compact_steps": 60,
+        "repair.alpha_weight": 0.0,
+    },
     "prior2_pretrained_alpha": {
         "weights.compact_model": PRIOR2,
         "tune.finetune": False,
         "repair.alpha_weight": 1.0,
     },
-    "noref_pretrained": {"weights.compact_model": PRIOR + "-noref", "tune.finetune": False},
-    "prior3_pretrained": {"weights.compact_model": PRIOR3, "tune.finetune": False},
-    "prior4_pretrained": {"weights.compact_model": PRIOR4, "tune.finetune": False},
+    "noref_pretrained": {
+        "weights.compact_model": PRIOR + "-noref",
+        "tune.finetune": False,
+        "repair.alpha_weight": 0.0,
+    },
+    "prior3_pretrained": {"weights.compact_model": PRIOR3, "tune.finetune": False, **NO_ALPHA},
+    "prior4_pretrained": {"weights.compact_model": PRIOR4, "tune.finetune": False, **NO_ALPHA},
     "prior4_pretrained_alpha": {  # the same, with its predicted alpha as a mask target
         "weights.compact_model": PRIOR4,
         "tune.finetune": False,
         "repair.alpha_weight": 1.0,
     },
-    "prior4": {"weights.compact_model": PRIOR4},  # tuned 400 steps, the RGB loss over the whole view
-    "prior4_inside": {"weights.compact_model": PRIOR4, "tune.compact_region": "inside"},
+    "prior4": {"weights.compact_model": PRIOR4, **NO_ALPHA},  # tuned 400 steps, the RGB loss over the view
+    "prior4_inside": {
+        "weights.compact_model": PRIOR4,
+        "tune.compact_region": "inside",
+        "repair.alpha_weight": 0.0,
+    },
+    # the ablation without the alpha target: a repair prior's alpha is no mask target (the default before
+    # 2026-12-05); scenes where no prior repairs either model are the same bytes as 'full'
+    "no_alpha_target": NO_ALPHA,
 }
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")

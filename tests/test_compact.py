@@ -500,7 +500,7 @@ def test_prior_repair_uses_its_alpha_and_a_killed_run_resumes_bit_identical(
     full = _repair(tmp_path / "a", dirs, tuned.out_dir, params)
     info = json.loads((full.out_dir / "repair.json").read_text())
     assert info["compact_model"] == "tiny-prior" and info["lora"] == "fine-tuned"
-    no_alpha = _repair(tmp_path / "n", dirs, tuned.out_dir, REPAIR)  # alpha_weight 0: the default
+    no_alpha = _repair(tmp_path / "n", dirs, tuned.out_dir, {**REPAIR, "alpha_weight": 0.0})
     a = Gaussians.load(full.out_dir / "gaussians.npz")
     assert not torch.equal(
         a.opacity_logits, Gaussians.load(no_alpha.out_dir / "gaussians.npz").opacity_logits

@@ -21,8 +21,8 @@ alpha, and with 8 channels the nearest training view warped through the render's
 (go_core.compact.reference); its repaired alpha is kept with the view and ``alpha_weight`` · L1(alpha) joins
 the view's image loss (the mask target of issue 34). Given further models of the scene (``consensus``), each
 novel view's repair input is what all the models render (go_core.repair.consensus), not the render alone;
-with a restorer that gives no alpha, ``alpha_weight`` > 0 makes that agreed alpha the view's mask target, so
-what the models do not share becomes transparent rather than white.
+with a restorer that gives no alpha, ``agreed_alpha_weight`` > 0 makes that agreed alpha the view's mask
+target, so what the models do not share becomes transparent rather than white.
 """
 
 from __future__ import annotations
@@ -203,8 +203,15 @@ class RepairCache:
 
     def agreed_alpha_target(self, alpha: torch.Tensor) -> torch.Tensor | None:
         """The mask target of a view whose restorer gives no alpha: under the consensus, with
-        ``alpha_weight`` > 0, what all the models render (``alpha``, their agreed alpha); else none."""
-        return alpha.contiguous() if self.consensus and self.settings.alpha_weight > 0 else None
+        ``agreed_alpha_weight`` > 0, what all the models render (``alpha``, their agreed alpha); else none."""
+        return alpha.contiguous() if self.consensus and self.settings.agreed_alpha_weight > 0 else None
+
+    @property
+    def alpha_target_weight(self) -> float:
+        """The weight of its views' mask target: ``alpha_weight`` where the restorer gives alpha (a repair
+        prior), ``agreed_alpha_weight`` where the target is the models' agreed alpha."""
+        gives_alpha = getattr(self.diffusion, "channels", 3) >= 4
+        return self.settings.alpha_weight if gives_alpha else self.settings.agreed_alpha_weight
 
 
 def _references(engine, views: list):
@@ -275,8 +282,9 @@ class _RepairLoss:
         cv = self.cache.views[int(pick)]
         rgb, alpha = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
         img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, s.lpips)
-        if cv.alpha is not None and s.alpha_weight > 0:  # the repaired or agreed alpha as a mask target
-            img = img + s.alpha_weight * (alpha - cv.alpha).abs().mean()
+        weight = self.cache.alpha_target_weight
+        if cv.alpha is not None and weight > 0:  # the repaired or agreed alpha as a mask target
+            img = img + weight * (alpha - cv.alpha).abs().mean()
         loss = self.decay(step) * cv.w * cv.lam * img
         if step % 100 == 0:
             self.log.append(

@@ -70,10 +70,17 @@ class RepairSettings:
     l2: float = setting(1.0, ge=0)
     lpips: float = setting(1.0, ge=0, doc="LPIPS term (off, and said so, without LPIPS weights)")
     alpha_weight: float = setting(
+        1.0,
+        ge=0,
+        doc="L1 of the render's alpha to the repaired alpha of a restorer that gives one (a repair prior, "
+        "docs/repair_prior.md): its mask target at each repaired view (docs/repair.md, 'The prior's alpha "
+        "where the prior repairs')",
+    )
+    agreed_alpha_weight: float = setting(
         0.0,
         ge=0,
-        doc="L1 of the render's alpha to a repair prior's repaired alpha (docs/repair_prior.md), or with a "
-        "restorer that gives none, under the consensus, to the models' agreed alpha (docs/repair.md)",
+        doc="with a restorer that gives no alpha, under the consensus: L1 of the render's alpha to the "
+        "models' agreed alpha (docs/real_captures.md: -0.5 dB on both real/ captures)",
     )
     means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
