@@ -80,7 +80,8 @@ class RepairSettings:
         0.0,
         ge=0,
         doc="with a restorer that gives no alpha, under the consensus: L1 of the render's alpha to the "
-        "models' agreed alpha (docs/real_captures.md: -0.5 dB on both real/ captures)",
+        "models' agreed alpha (-0.5 dB on both real/ captures: docs/repair.md, 'The prior's alpha where the "
+        "prior repairs')",
     )
     means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
