@@ -59,23 +59,15 @@ VARIANTS = {
     "prior_pretrained": {"weights.compact_model": PRIOR, "tune.finetune": False, "repair.alpha_weight": 1.0},
     "prior_no_alpha": {"weights.compact_model": PRIOR, "repair.alpha_weight": 0.0},
     "prior_no_reference": {"weights.compact_model": PRIOR + "-noref", "repair.alpha_weight": 1.0},
-    "prior2": {"weights.compact_model": PRIOR2, "repair.alpha_weight": 0.0},  # tuned, as measured (weight 0)
+    "prior2": {"weights.compact_model": PRIOR2, **NO_ALPHA},  # tuned, as measured (weight 0)
     "prior2_pretrained": {"weights.compact_model": PRIOR2, "tune.finetune": False, **NO_ALPHA},
-    "prior2_tune60": {  # a short tuning
-        "weights.compact_model": PRIOR2,
-        "tune.compact_steps": 60,
-        "repair.alpha_weight": 0.0,
-    },
+    "prior2_tune60": {"weights.compact_model": PRIOR2, "tune.compact_steps": 60, **NO_ALPHA},  # short tuning
     "prior2_pretrained_alpha": {
         "weights.compact_model": PRIOR2,
         "tune.finetune": False,
         "repair.alpha_weight": 1.0,
     },
-    "noref_pretrained": {
-        "weights.compact_model": PRIOR + "-noref",
-        "tune.finetune": False,
-        "repair.alpha_weight": 0.0,
-    },
+    "noref_pretrained": {"weights.compact_model": PRIOR + "-noref", "tune.finetune": False, **NO_ALPHA},
     "prior3_pretrained": {"weights.compact_model": PRIOR3, "tune.finetune": False, **NO_ALPHA},
     "prior4_pretrained": {"weights.compact_model": PRIOR4, "tune.finetune": False, **NO_ALPHA},
     "prior4_pretrained_alpha": {  # the same, with its predicted alpha as a mask target
@@ -84,11 +76,7 @@ VARIANTS = {
         "repair.alpha_weight": 1.0,
     },
     "prior4": {"weights.compact_model": PRIOR4, **NO_ALPHA},  # tuned 400 steps, the RGB loss over the view
-    "prior4_inside": {
-        "weights.compact_model": PRIOR4,
-        "tune.compact_region": "inside",
-        "repair.alpha_weight": 0.0,
-    },
+    "prior4_inside": {"weights.compact_model": PRIOR4, "tune.compact_region": "inside", **NO_ALPHA},
     # the ablation without the alpha target: a repair prior's alpha is no mask target (the default before
     # 2026-12-05); scenes where no prior repairs either model are the same bytes as 'full'
     "no_alpha_target": NO_ALPHA,

@@ -166,7 +166,7 @@ class RepairCache:
         rng = numpy_rng(self.seed, "repair_views", period)
         gen = torch_generator(self.seed, "repair_views", period)
         out = []
-        with_alpha = getattr(self.diffusion, "channels", 3) >= 4  # a repair prior: RGB + alpha in and out
+        with_alpha = self.restorer_gives_alpha
         views = self.arcs.sample(rng, s.views_per_arc, name_prefix=f"repair_{period}")
         if s.lift_deg:
             views = with_raised_twins(views, self.arcs.ellipse, s.lift_deg)
@@ -207,11 +207,15 @@ class RepairCache:
         return alpha.contiguous() if self.consensus and self.settings.agreed_alpha_weight > 0 else None
 
     @property
+    def restorer_gives_alpha(self) -> bool:
+        """A repair prior: RGB + alpha in and out (4 or 8 channels)."""
+        return getattr(self.diffusion, "channels", 3) >= 4
+
+    @property
     def alpha_target_weight(self) -> float:
         """The weight of its views' mask target: ``alpha_weight`` where the restorer gives alpha (a repair
         prior), ``agreed_alpha_weight`` where the target is the models' agreed alpha."""
-        gives_alpha = getattr(self.diffusion, "channels", 3) >= 4
-        return self.settings.alpha_weight if gives_alpha else self.settings.agreed_alpha_weight
+        return self.settings.alpha_weight if self.restorer_gives_alpha else self.settings.agreed_alpha_weight
 
 
 def _references(engine, views: list):
