@@ -80,7 +80,7 @@ VARIANTS = {
     # the ablation without the alpha target: a repair prior's alpha is no mask target (the default before
     # 2026-12-05); scenes where no prior repairs either model are the same bytes as 'full'
     "no_alpha_target": NO_ALPHA,
-    # every repaired view with a twin raised 30 degrees (measured 2026-11-28 on plate: LPIPS* -0.88)
+    # every repaired view with a twin raised 30 degrees (docs/repair.md, 'Raised views on plate')
     "lift30": {"repair.lift_deg": 30.0},
     # issue 34's comparator: the tuned realesr repairs both models, never a repair prior
     "no_prior": {"tune.prior_choice": ""},
