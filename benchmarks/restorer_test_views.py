@@ -21,12 +21,13 @@ import torch
 from _machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
 
 
-def tuned_dir(workdir: Path) -> Path:
-    """The tune step's artifact that tuned a restorer (status ok, a tuned weights file)."""
+def tuned_run(workdir: Path) -> tuple[Path, dict]:
+    """The tune step's artifact that tuned a restorer (status ok, a tuned weights file) and its tune.json."""
     for folder in sorted((workdir / "artifacts" / "tune").iterdir()):
         info_path = folder / "tune.json"
-        if info_path.exists() and json.loads(info_path.read_text()).get("status") == "ok":
-            return folder
+        info = json.loads(info_path.read_text()) if info_path.exists() else {}
+        if info.get("status") == "ok":
+            return folder, info
     raise SystemExit(f"{workdir}: no tune step that tuned a restorer")
 
 
@@ -35,11 +36,11 @@ def score_views(scene_dir: Path, workdir: Path, resolution: int) -> dict:
 
     from go_core.diffusion.frame import Frame
     from go_core.gaussians import Gaussians
+    from go_core.metrics.psnr import psnr
     from go_core.repair.data import bchw_to_hwc, framed_input, hwc_to_bchw, render_rgb_alpha_depth
     from go_core.scene.loader import load_scene
 
-    folder = tuned_dir(workdir)
-    info = json.loads((folder / "tune.json").read_text())
+    folder, info = tuned_run(workdir)
     name = info["compact"]["name"]
     engines = {
         "tuned": compact_engine(name, "cpu", folder / info["tuned"]),
@@ -53,18 +54,14 @@ def score_views(scene_dir: Path, workdir: Path, resolution: int) -> dict:
         truth = torch.from_numpy(view.image) * mask + (1.0 - mask)
         frame = Frame.choose(view.camera.height, view.camera.width, alpha)
         square = framed_input(frame, resolution, rgb)
-        row = {"view": view.name, "coarse": _psnr(rgb, truth)}
+        row = {"view": view.name, "coarse": psnr(rgb, truth)}
         for label, engine in engines.items():
             out = engine.repair_one_pass(square, 1.0)
             restored = bchw_to_hwc(frame.from_square(out.float(), hwc_to_bchw(rgb)))[..., :3].clamp(0.0, 1.0)
-            row[label] = _psnr(restored, truth)
+            row[label] = psnr(restored, truth)
         rows.append(row)
     means = {k: float(np.mean([r[k] for r in rows])) for k in ("coarse", "tuned", "shipped")}
     return {"restorer": name, "tune_dir": str(folder), "mean": means, "views": rows}
-
-
-def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float(-10.0 * torch.log10(((a - b) ** 2).mean()))
 
 
 def main() -> None:
