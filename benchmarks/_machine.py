@@ -38,3 +38,12 @@ def code_version() -> str:
         if head.returncode == 0
         else "unknown"
     )
+
+
+def torch_run_context() -> str:
+    """Code, CPU, torch version and thread count of this process, for a result's command line."""
+    import torch
+
+    return (
+        f"code {code_version()}, {cpu_name()}, torch {torch.__version__}, {torch.get_num_threads()} thread(s)"
+    )

@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from _machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
+from _machine import torch_run_context  # benchmarks/ is on sys.path as a script
 
 IDENTITY = "identity-prior"
 OVERRIDES = {
@@ -85,15 +85,12 @@ def main() -> None:
         "--priors", type=Path, default=None, help="folder for the identity prior (default: beside --out)"
     )
     args = ap.parse_args()
-    import torch
 
     folder = args.priors or args.out.parent / "identity_prior"
     folder.mkdir(parents=True, exist_ok=True)
     digest = install_identity_prior(folder)
     result = json.loads(args.out.read_text()) if args.out.exists() else {"runs": {}, "commands": []}
-    where = (
-        f"code {code_version()}, {cpu_name()}, torch {torch.__version__}, {torch.get_num_threads()} thread(s)"
-    )
+    where = torch_run_context()
     result["commands"].append(f"python benchmarks/repair_identity.py {' '.join(sys.argv[1:])} ({where})")
     result["overrides"], result["identity_sha256"] = OVERRIDES, digest
     for spec in args.runs:

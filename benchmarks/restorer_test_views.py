@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
+from _machine import torch_run_context  # benchmarks/ is on sys.path as a script
+from go_pipeline.steps.params import RepairParams
 
 
 def tuned_run(workdir: Path) -> tuple[Path, dict]:
@@ -37,7 +38,7 @@ def score_views(scene_dir: Path, workdir: Path, resolution: int) -> dict:
     from go_core.diffusion.frame import Frame
     from go_core.gaussians import Gaussians
     from go_core.metrics.psnr import psnr
-    from go_core.repair.data import bchw_to_hwc, framed_input, hwc_to_bchw, render_rgb_alpha_depth
+    from go_core.repair.data import bchw_to_hwc, framed_input, hwc_to_bchw, on_white, render_rgb_alpha_depth
     from go_core.scene.loader import load_scene
 
     folder, info = tuned_run(workdir)
@@ -50,8 +51,7 @@ def score_views(scene_dir: Path, workdir: Path, resolution: int) -> dict:
     rows = []
     for view in load_scene(scene_dir).test:
         rgb, alpha, _ = render_rgb_alpha_depth(coarse, view.camera)
-        mask = torch.from_numpy(view.mask)[..., None]
-        truth = torch.from_numpy(view.image) * mask + (1.0 - mask)
+        truth = on_white(torch.from_numpy(view.image), torch.from_numpy(view.mask))
         frame = Frame.choose(view.camera.height, view.camera.width, alpha)
         square = framed_input(frame, resolution, rgb)
         row = {"view": view.name, "coarse": psnr(rgb, truth)}
@@ -68,11 +68,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("runs", nargs="+", help="SCENE_DIR:WORK_DIR")
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--resolution", type=int, default=256, help="repair.compact_resolution (its default)")
-    args = ap.parse_args()
-    where = (
-        f"code {code_version()}, {cpu_name()}, torch {torch.__version__}, {torch.get_num_threads()} thread(s)"
+    ap.add_argument(
+        "--resolution",
+        type=int,
+        default=RepairParams().compact_resolution,
+        help="side of the restorer's input (default: repair.compact_resolution's)",
     )
+    args = ap.parse_args()
+    where = torch_run_context()
     result = {
         "command": f"python benchmarks/restorer_test_views.py {' '.join(sys.argv[1:])} ({where})",
         "runs": {},
