@@ -96,6 +96,12 @@ class RepairSettings:
         lt=1,
         doc="prune below this opacity (coarse.min_opacity's role in the repair stage)",
     )
+    lambda_anisotropy: float = setting(
+        0.0,
+        ge=0,
+        doc="coarse.lambda_anisotropy's role in the repair stage; 0: off (docs/repair.md, 'The anisotropy "
+        "term in the repair')",
+    )
     checkpoint_every: int = setting(200, ge=0)
     backend: Backend = "auto"
     coarse: CoarseConfig = setting(default_factory=CoarseConfig, doc="the coarse step's settings")
@@ -120,7 +126,7 @@ class RepairSettings:
 
     def training_config(self, sh_degree: int) -> CoarseConfig:
         """The coarse stage's loss and learning rates with the repair schedule: constant position rate,
-        the appendix densification, no floater elimination, no depth term."""
+        the appendix densification, its own anisotropy weight, no floater elimination, no depth term."""
         return replace(
             self.coarse.scaled_schedule(),
             iterations=self.iterations,
@@ -135,6 +141,7 @@ class RepairSettings:
             densify_every=self.densify_every,
             opacity_reset_every=self.opacity_reset_every,
             min_opacity=self.min_opacity,
+            lambda_anisotropy=self.lambda_anisotropy,
             floaters=False,
             lambda_depth=0.0,
         )
