@@ -138,7 +138,8 @@ def test_loo_and_repair_receive_the_coarse_settings(pipeline):
     assert config.lambda_mask == 0.5 and config.min_opacity == repair.min_opacity == 0.02
     assert config.position_lr_init == config.position_lr_final == repair.means_lr
     # the repair's own anisotropy weight, not the coarse stage's
-    assert repair.coarse.lambda_anisotropy == 0.01 and config.lambda_anisotropy == repair.lambda_anisotropy == 0.0
+    assert repair.coarse.lambda_anisotropy == 0.01
+    assert config.lambda_anisotropy == repair.lambda_anisotropy == 0.0
     assert config.densify_from == 50 and config.floaters is False and config.lambda_depth == 0.0
 
 
