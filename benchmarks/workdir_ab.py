@@ -1,7 +1,8 @@
 """A/B of pipeline runs already made: per scene, two work dirs (or two runs of one) that differ in a setting,
 read back from what the runner recorded. For each side: the run's overrides and seed, the eval step's test
-metrics (PSNR, SSIM, LPIPS*, Gaussians, the final mesh's geometry when the scene has a ground truth) and
-the wall seconds of the steps the run computed; then B minus A per scene and the mean over scenes.
+metrics (PSNR, SSIM, LPIPS*, Gaussians; the final mesh's and the visual hull's geometry when the scene has a
+ground truth) and the wall seconds of the steps the run computed; then B minus A per scene and the mean over
+scenes.
 
     python benchmarks/workdir_ab.py --label A=control --label B=variant \\
         --pair plate=W/plate_C/plate:W/plate_V/plate --pair basket=W/b_C/basket:W/b_V/basket#RUN_ID \\
@@ -41,7 +42,8 @@ def side_summary(side: str) -> dict:
     if ev is None or "artifact_dir" not in ev:
         sys.exit(f"workdir_ab: {workdir}: the run has no eval step")
     metrics = json.loads((Path(ev["artifact_dir"]) / "metrics.json").read_text())
-    final = (metrics.get("geometry") or {}).get("final") or {}
+    geometry = metrics.get("geometry") or {}
+    final, hull = geometry.get("final") or {}, geometry.get("hull") or {}
     return {
         "workdir": str(workdir),
         "run": run.get("started"),
@@ -51,6 +53,7 @@ def side_summary(side: str) -> dict:
         "gaussians": metrics.get("num_gaussians"),
         "model": metrics.get("repair_model") or metrics.get("model"),
         "geometry": {k: final[k] for k in GEOMETRY if k in final},
+        "hull_geometry": {k: hull[k] for k in GEOMETRY if k in hull},
         "step_wall_s": {
             name: round(s["wall_s"], 1) for name, s in steps.items() if not s.get("cached") and "wall_s" in s
         },
