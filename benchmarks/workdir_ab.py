@@ -5,11 +5,12 @@ ground truth) and the wall seconds of the steps the run computed; then B minus A
 scenes.
 
     python benchmarks/workdir_ab.py --label A=control --label B=variant \\
-        --pair plate=W/plate_C/plate:W/plate_V/plate --pair basket=W/b_C/basket:W/b_V/basket#RUN_ID \\
+        --pair plate W/plate_C/plate W/plate_V/plate --pair basket W/b_C/basket#RUN_ID W/b_V/basket \\
         --note "..." --out benchmarks/results/NAME.json
 
-A side is ``WORKDIR`` (its latest run, runs/last.json) or ``WORKDIR#RUN_ID`` (runs/run-RUN_ID.json, as
-``go-pipeline runs`` lists them). ``--merge`` adds the pairs to an existing --out (same labels)."""
+A side is ``WORKDIR`` (its latest run) or ``WORKDIR#RUN_ID`` (the id ``go-pipeline runs`` lists, e.g.
+``2026-12-05T22:05:48.375Z``); runs are read by that command's own ``load_runs``. ``--merge`` adds the
+pairs to an existing --out (same labels)."""
 
 from __future__ import annotations
 
@@ -20,18 +21,21 @@ from pathlib import Path
 
 from _machine import code_version, cpu_name
 
+from go_pipeline.commands.runs import load_runs
+
 METRICS = ("psnr", "ssim", "lpips_star")
 GEOMETRY = ("chamfer_l1", "fscore_1pct", "silhouette_iou")
 
 
 def run_record(side: str) -> tuple[Path, dict]:
-    """The work dir and the run JSON a side names."""
+    """The work dir and the run a side names (its latest run without an id)."""
     workdir, _, run_id = side.partition("#")
-    runs = Path(workdir) / "runs"
-    path = runs / (f"run-{run_id}.json" if run_id else "last.json")
-    if not path.is_file():
-        sys.exit(f"workdir_ab: {path}: no such run record")
-    return Path(workdir), json.loads(path.read_text())
+    runs = load_runs(Path(workdir))
+    chosen = [r for r in runs if r.get("started") == run_id] if run_id else runs[-1:]
+    if not chosen:
+        ids = ", ".join(str(r.get("started")) for r in runs) or "none"
+        sys.exit(f"workdir_ab: {workdir}: no run {run_id or ''} (runs: {ids})")
+    return Path(workdir), chosen[0]
 
 
 def side_summary(side: str) -> dict:
@@ -81,7 +85,7 @@ def means(scenes: dict) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--pair", action="append", required=True, help="SCENE=SIDE_A:SIDE_B")
+    ap.add_argument("--pair", action="append", nargs=3, required=True, metavar=("SCENE", "SIDE_A", "SIDE_B"))
     ap.add_argument("--label", action="append", default=[], help="A=NAME or B=NAME (what each side is)")
     ap.add_argument("--note", default="")
     ap.add_argument("--out", type=Path, required=True)
@@ -95,9 +99,7 @@ def main() -> None:
     )
     if args.merge and doc.get("labels", labels) != labels:
         sys.exit(f"workdir_ab: {args.out} has labels {doc.get('labels')}, not {labels}")
-    for pair in args.pair:
-        scene, _, sides = pair.partition("=")
-        side_a, _, side_b = sides.partition(":")
+    for scene, side_a, side_b in args.pair:
         a, b = side_summary(side_a), side_summary(side_b)
         doc["scenes"][scene] = {"A": a, "B": b, "delta": delta(a, b)}
     doc["labels"] = labels
