@@ -8,6 +8,8 @@
 #              lpips/alex safetensors from ~/.cache/go-pipeline)
 #   .devdata/code  `git rev-parse --short HEAD`, recorded with the results
 # Then: run(command="bash benchmarks/cuda_checks.sh", carry=[".whl", ".devdata"], timeout_s=590).
+# The whole chain needs ~700 s on an H100 (2026-12-06): the first call stops at t+560 s, and the same call again
+# on the still-warm machine (within its 30 s idle window) resumes the e2e run from the runner's cache.
 # Results land in $OUT; benchmarks/results/cuda_h100.json / cuda_h200.json were written from them.
 set -u
 export PYTHONUNBUFFERED=1
@@ -35,9 +37,9 @@ timeout 200 python3 -m pytest tests/test_render_cuda.py -v -rs 2>&1 | tail -25 |
 el "rasterizer benchmark"
 timeout 240 python3 benchmarks/rasterizer.py --backends cuda --repeats 5 --json $OUT/rasterizer_cuda.json 2>&1 | tail -20
 el "e2e dev/milk on cuda"
-cp -r .devdata/milk /tmp/milk
+[ -d /tmp/milk ] || cp -r .devdata/milk /tmp/milk  # a second call on the warm machine resumes the run
 timeout $(( T0 + 560 - $(date +%s) )) python3 -c "import sys; from go_pipeline.cli import main; sys.exit(main())" run /tmp/milk --device cuda --set "eval.lpips_nets=[alex]" --until eval 2>&1 | tail -40 | tee $OUT/e2e_milk.txt
 echo "rc=$?"
-(cd /tmp/milk/.go && tar cf $OUT/eval_json.tar outputs/metrics.json outputs/index.json $(find artifacts/eval artifacts/mesh -name "*.json" 2>/dev/null)) ; python3 -c "from go_pipeline.cli import main; main()" runs /tmp/milk > $OUT/e2e_runs.txt 2>&1
+(cd /tmp/milk/.go && tar cf $OUT/eval_json.tar $(find artifacts/eval artifacts/mesh -name "*.json" 2>/dev/null)) ; python3 -c "from go_pipeline.cli import main; main()" runs /tmp/milk > $OUT/e2e_runs.txt 2>&1
 ls /tmp/milk/.go/logs 2>/dev/null | tail -3; LOG=$(ls -t /tmp/milk/.go/logs/* 2>/dev/null | head -1); [ -n "$LOG" ] && tail -c 200000 "$LOG" > $OUT/e2e_milk_log.txt
 el "done"
