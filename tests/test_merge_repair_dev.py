@@ -1,0 +1,53 @@
+"""benchmarks/merge_repair_dev.py: per-object repair_dev.py JSONs merged into one results file."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from _benchmark_module import benchmark_module
+
+merge_module = benchmark_module("merge_repair_dev")
+
+
+def _run_file(path, scene: str, full: tuple, no_prior: tuple, chosen: str, second: str):
+    """A repair_dev.py output of one object with two variants (psnr, ssim, lpips_star each)."""
+    variants = {
+        name: dict(zip(("psnr", "ssim", "lpips_star"), values, strict=True)) | {"model": "repair"}
+        for name, values in (("full", full), ("no_prior", no_prior))
+    }
+    lora = {"restorer_chosen": chosen, "consensus_restorer": second, "tuned_psnr": 30.0, "prior_psnr": 31.0}
+    record = {"variants": variants, "lora": lora, "loo_pair_psnr": 32.123456}
+    path.write_text(json.dumps({"command": f"repair_dev {scene}", "threads": 1, "scenes": {scene: record}}))
+    return path
+
+
+def test_means_and_per_object_figures(tmp_path):
+    a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
+    b = _run_file(tmp_path / "b.json", "pyb__ball", (24.0, 0.7, 14.0), (24.5, 0.6, 13.0), "realesr", "prior")
+    merged = merge_module.merge([a, b], None)
+    summary = merged["summary"]
+    assert summary["objects_compared"] == 2
+    assert summary["means"]["full"] == {"psnr": 22.0, "ssim": 0.8, "lpips_star": 12.0}
+    assert summary["means"]["no_prior"] == {"psnr": 21.75, "ssim": 0.7, "lpips_star": 12.0}
+    box = summary["per_object"]["hope/box"]
+    assert (box["restorer_chosen"], box["second_model_restorer"]) == ("prior", "own")
+    assert summary["per_object"]["pyb/ball"]["second_model_restorer"] == "prior"
+    assert box["fold_psnr"] == {"tuned_psnr": 30.0, "prior_psnr": 31.0}
+    assert box["loo_pair_psnr"] == 32.1235
+    assert merged["commands"] == ["repair_dev hope__box", "repair_dev pyb__ball"]
+
+
+def test_previous_figures_set_beside(tmp_path):
+    a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"summary": {"per_object": {"hope/box": {"full": {"psnr": 18.0}, "x": {}}}}}))
+    previous = merge_module.merge([a], old)["summary"]["previous"]
+    assert previous["per_object"] == {"hope/box": {"full": {"psnr": 18.0}}}
+
+
+def test_an_object_twice_is_an_error(tmp_path):
+    a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
+    b = _run_file(tmp_path / "b.json", "hope__box", (21.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
+    with pytest.raises(SystemExit, match="hope/box is already in another file"):
+        merge_module.merge([a, b], None)
