@@ -11,6 +11,16 @@ from pathlib import Path
 import numpy as np
 
 
+def add_model_arguments(parser, variant: str) -> None:
+    """The arguments that name the final models: ``--data`` (the dev scenes), ``--models`` (a
+    ``repair_dev.py`` JSON) and ``--variant`` (which of its variants, ``variant`` by default)."""
+    parser.add_argument("--data", type=Path, required=True)
+    parser.add_argument(
+        "--models", type=Path, required=True, help="a repair_dev.py JSON: repair_dir per scene"
+    )
+    parser.add_argument("--variant", default=variant, help="which of its variants' final models")
+
+
 def final_gaussians(models: Path, variant: str) -> dict[str, Path]:
     """Per scene of the ``repair_dev.py`` JSON ``models``: the ``gaussians.npz`` of ``variant``'s repair."""
     scenes = json.loads(Path(models).read_text())["scenes"]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from _final_models import final_gaussians, load_final  # benchmarks/ is on sys.path as a script
+from _final_models import add_model_arguments, final_gaussians, load_final  # benchmarks/ on sys.path
 from _machine import code_version, cpu_name
 
 from go_core.metrics.error_split import depth_map
@@ -52,9 +52,7 @@ def view_record(gaussians, camera, truth, tolerance: float) -> dict:
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, required=True)
-    ap.add_argument("--models", type=Path, required=True, help="a repair_dev.py JSON (repair_dir per scene)")
-    ap.add_argument("--variant", default="full", help="which of its variants' final models")
+    add_model_arguments(ap, "full")
     ap.add_argument("--scenes", nargs="+", required=True)
     ap.add_argument("--tolerance", type=float, default=0.05, help="world units (dev radius 1)")
     ap.add_argument("--out", type=Path, required=True)

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import torch
-from _final_models import final_gaussians, load_final  # benchmarks/ is on sys.path as a script
+from _final_models import add_model_arguments, final_gaussians, load_final  # benchmarks/ on sys.path
 from _machine import code_version, cpu_name
 from go_pipeline.steps.params import MeshParams
 
@@ -61,9 +61,7 @@ def measure(scene_dir: Path, gaussians: Path, variants: dict[str, dict], samples
 
 def main(argv: list[str]) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, required=True)
-    ap.add_argument("--models", type=Path, required=True, help="a repair_dev.py JSON (repair_dir per scene)")
-    ap.add_argument("--variant", default="realesr", help="which of its variants' final models")
+    add_model_arguments(ap, "realesr")
     ap.add_argument("--settings", nargs="+", required=True, help="NAME=JSON MeshSettings overrides")
     ap.add_argument("--scenes", nargs="+", required=True)
     ap.add_argument("--samples", type=int, default=300_000)
