@@ -18,7 +18,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
 from _final_models import add_model_arguments, final_gaussians, load_final  # benchmarks/ on sys.path
 from _machine import code_version, cpu_name
 
@@ -83,5 +82,4 @@ def main(argv: list[str]) -> None:
 if __name__ == "__main__":
     import sys
 
-    torch.set_grad_enabled(False)
     main(sys.argv[1:])

@@ -50,9 +50,8 @@ def means(per_object: dict, variants: list[str]) -> dict:
 def merge(paths: list[Path], previous: Path | None) -> dict:
     """The merged record of ``paths`` (an object twice is an error: which run would count?)."""
     objects, commands, variants = {}, [], []
-    first = json.loads(paths[0].read_text())
-    for path in paths:
-        data = json.loads(path.read_text())
+    runs = [(path, json.loads(path.read_text())) for path in paths]
+    for path, data in runs:
         commands += data.get("commands", [data.get("command", "")])
         for scene, record in data["scenes"].items():
             name = object_name(scene)
@@ -70,7 +69,8 @@ def merge(paths: list[Path], previous: Path | None) -> dict:
             "per_object": {n: {v: old[n][v] for v in variants if v in old.get(n, {})} for n in per_object},
         }
     keep = ("cpu", "cpu_count", "machine", "threads", "torch", "seed", "overrides")
-    return {k: first.get(k) for k in keep} | {"commands": commands, "objects": objects, "summary": summary}
+    machine = {k: runs[0][1].get(k) for k in keep}
+    return machine | {"commands": commands, "objects": objects, "summary": summary}
 
 
 def main() -> None:
@@ -81,7 +81,7 @@ def main() -> None:
     ap.add_argument("--previous", type=Path, help="an earlier merged file of the same objects")
     args = ap.parse_args()
     merged = {"note": args.note} | merge(args.inputs, args.previous)
-    args.out.write_text(json.dumps(merged, indent=1, sort_keys=False) + "\n")
+    args.out.write_text(json.dumps(merged, indent=1) + "\n")
     for variant, m in merged["summary"]["means"].items():
         print(f"{variant:10s} " + " / ".join(f"{m[k]:.2f}" for k in METRICS))
 
