@@ -86,3 +86,25 @@ def test_silhouette_of_a_sphere_mesh_matches_its_analytic_mask():
         mask = sphere_depth(cam, 0.8)[1]
         assert silhouette_iou(mesh, cam, mask) > 0.985
         assert silhouette_iou(mesh, cam, np.zeros_like(mask)) == 0.0
+
+
+def test_sliding_midpoint_tree_gives_the_default_trees_exact_neighbours():
+    """The eval's faster tree (sliding-midpoint splits) returns the default cKDTree's nearest distances
+    and samples to the bit, on samples of flat faces (where the default tree is slow) queried from off
+    them; so the metrics do not depend on which tree searched."""
+    from scipy.spatial import cKDTree
+
+    from go_core.metrics.geometry import nearest_sample_tree
+
+    rng = np.random.default_rng(11)
+    faces = []
+    for axis in range(3):  # the six faces of a box, 4000 samples each
+        for side in (-1.0, 1.0):
+            pts = rng.uniform(-1, 1, size=(4000, 3))
+            pts[:, axis] = side
+            faces.append(pts)
+    box = np.concatenate(faces)
+    queries = rng.normal(size=(6000, 3)) * 0.8
+    d_ref, i_ref = cKDTree(box).query(queries)
+    d, i = nearest_sample_tree(box).query(queries, workers=2)
+    assert np.array_equal(d, d_ref) and np.array_equal(i, i_ref)

@@ -44,6 +44,16 @@ def bounding_radius(mesh: TriMesh) -> float:
     return float(np.linalg.norm(mesh.vertices - centre, axis=1).max())
 
 
+def nearest_sample_tree(points: np.ndarray):
+    """A scipy cKDTree over surface samples, split at the sliding midpoint (``balanced_tree=False``) with
+    uncompacted nodes: the same exact nearest distances as the default median-split tree, but on samples of
+    a visual hull's flat faces the default tree made queries up to 6x slower (basket's eval: 9.3 s against
+    1.5 s for one direction of 300 000 samples)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
 def compare_samples(
     pred: tuple[np.ndarray, np.ndarray],
     gt: tuple[np.ndarray, np.ndarray],
@@ -54,10 +64,8 @@ def compare_samples(
     """The metrics of the module docstring from (points, normals) samples of both surfaces. ``workers``
     threads share the nearest-sample queries (each query is exact and independent, so the figures do not
     depend on it)."""
-    from scipy.spatial import cKDTree
-
-    d_pg, i_pg = cKDTree(gt[0]).query(pred[0], workers=workers)
-    d_gp, i_gp = cKDTree(pred[0]).query(gt[0], workers=workers)
+    d_pg, i_pg = nearest_sample_tree(gt[0]).query(pred[0], workers=workers)
+    d_gp, i_gp = nearest_sample_tree(pred[0]).query(gt[0], workers=workers)
     acc, comp = float(d_pg.mean()), float(d_gp.mean())
     nc = 0.5 * (
         float(np.abs(np.einsum("ij,ij->i", pred[1], gt[1][i_pg])).mean())
