@@ -201,6 +201,14 @@ def render_object(entry: dict, assets_root: Path, folder: Path, args, views) -> 
     return _children_cpu() - c0
 
 
+def parse_sets(sets: list[str]) -> dict:
+    """``--set`` values as the runner's overrides {"step.param": value}, parsed as ``go-pipeline run --set``
+    parses them (each value read as YAML; the runner checks names and types at plan time)."""
+    from go_pipeline.pipeline import parse_set_argument
+
+    return dict(parse_set_argument(item) for item in sets)
+
+
 def coarse_object(folder: Path, args) -> tuple[Path, float]:
     """go-pipeline up to ``coarse`` on the rendered scene (the real runner, in this process)."""
     from go_pipeline.runner import run_pipeline
@@ -211,6 +219,7 @@ def coarse_object(folder: Path, args) -> tuple[Path, float]:
         workdir=folder / "work",
         until="coarse",
         profile=args.profile,
+        overrides=parse_sets(args.sets),
         seed=args.seed,
         in_process=True,
         quiet=True,
@@ -327,6 +336,7 @@ def write_manifest(args, index: dict) -> dict:
             "samples": args.samples,
             "novel_views": args.novel,
             "profile": args.profile or "default",
+            "set": list(args.sets),
             "val_fraction": index["val_fraction"],
         },
         "counts": {
@@ -396,6 +406,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--novel", type=int, default=24, help="novel views per object")
     ap.add_argument("--val-fraction", type=float, default=0.15)
     ap.add_argument("--profile", default=None, help="go-pipeline profile (default: the default settings)")
+    ap.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="STEP.PARAM=VALUE",
+        help="a go-pipeline param for the coarse stage, as `go-pipeline run --set` (repeatable)",
+    )
     ap.add_argument(
         "--budget-min",
         type=float,

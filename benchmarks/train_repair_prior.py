@@ -10,7 +10,8 @@ the coarse depth there): renders that are already right, which the prior should 
 (``--val-train-views`` scores the held-out objects there too). ``--init PRIOR`` fine-tunes a trained
 prior instead of starting afresh.
 Augmentation: random crops, horizontal flips and RGB channel permutations (applied to input, reference and
-target alike). Deterministic for a seed on CPU; resumable (``<out>/checkpoint.safetensors``). Needs torch,
+target alike). Deterministic for a seed on CPU; resumable (``<out>/checkpoint.safetensors``, kept at the last
+step too, so a run with a larger ``--steps`` trains on from a finished one, Adam state and all). Needs torch,
 numpy and this repository on PYTHONPATH (no other package); LPIPS weights from ``--lpips-weights`` or the
 go-pipeline cache. Runs on a GPU with ``--device cuda``; the weights written are the same kind of file
 either way. Example (1 CPU thread)::
@@ -314,11 +315,12 @@ def _run_steps(args, model, lpips, opt, rng, data: dict, state: dict, train_view
             )
             running = []
             print(json.dumps(state["log"][-1]), flush=True)
-        if args.checkpoint_every and step % args.checkpoint_every == 0 and step < args.steps:
+        if args.checkpoint_every and (step % args.checkpoint_every == 0 or step == args.steps):
+            # the last step too: a later run with a larger --steps trains on from it, Adam state and all
             _save_checkpoint(
                 args.out / "checkpoint.safetensors", model, opt, {**state, "rng": rng.bit_generator.state}
             )
-            if args.budget_min and (time.perf_counter() - wall0) / 60 > args.budget_min:
+            if step < args.steps and args.budget_min and (time.perf_counter() - wall0) / 60 > args.budget_min:
                 print(
                     f"stopped at step {step} of {args.steps} (--budget-min): run again to resume", flush=True
                 )

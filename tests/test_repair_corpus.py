@@ -16,6 +16,7 @@ from go_core.corpus.geometry import Mesh, read_obj, shape_distance
 from go_core.corpus.split import geometry_groups, split_groups
 from go_core.corpus.views import NOVEL_ELEVATION, TRAIN_ELEVATION, draw_views
 from go_core.io.npz import write_npz_deterministic
+from go_pipeline.pipeline import PipelineError
 from tests._benchmark_module import benchmark_module
 
 BPY_PYTHON = Path(os.environ.get("GO_BPY_PYTHON", Path.home() / ".venvs" / "bpy" / "bin" / "python"))
@@ -218,3 +219,16 @@ def test_extend_index_keeps_old_splits_and_puts_a_new_copy_beside_its_group():
     assert added["b/copy_of_x"]["split"] == "val"  # beside a/x, not the fresh draw's "train"
     assert added["b/new"]["split"] == "val" and added["b/res"]["excluded"]
     assert out["seed"] == 0 and out["val_fraction"] == 0.15
+
+
+def test_corpus_set_values_become_the_runners_overrides():
+    """``--set STEP.PARAM=VALUE`` reaches the coarse stage as the runner's overrides, each value read as YAML
+    (so the runner's type check sees numbers and booleans, not strings); an item without "=" is refused."""
+    corpus = benchmark_module("repair_corpus")
+    args = corpus.parse_args(
+        ["--out", "x", "--set", "coarse.lambda_anisotropy=0", "--set", "coarse.floaters=false"]
+    )
+    assert corpus.parse_sets(args.sets) == {"coarse.lambda_anisotropy": 0, "coarse.floaters": False}
+    assert corpus.parse_sets([]) == {}
+    with pytest.raises(PipelineError, match="STEP.PARAM=VALUE"):
+        corpus.parse_sets(["coarse.lambda_anisotropy"])

@@ -133,12 +133,13 @@ def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
     assert after < 0.8 * before, (before, after)
     val = result["validation"]["mean_over_objects"]
     assert val["psnr_out"] > val["psnr_in"]
-    # a run cut after step 20 resumes from its last checkpoint (step 10) and ends with the same weights
+    # a finished 20-step run keeps its last step's checkpoint; trained on to 30 steps from it (Adam and the
+    # batch draws restored) it ends with the weights of the straight 30-step run
     half = tmp_path / "half"
     trainer.train(_args(trainer, corpus, half, 20))
     assert (half / "checkpoint.safetensors").exists()
     resumed = trainer.train(_args(trainer, corpus, half, 30))
-    assert resumed["resumed_from"] == 10
+    assert resumed["resumed_from"] == 20
     assert (half / "prior.safetensors").read_bytes() == (tmp_path / "run" / "prior.safetensors").read_bytes()
     # --init starts from a trained prior: no step leaves its weights as they were, and validation reports
     # the PSNR inside and outside the true silhouette
@@ -348,3 +349,19 @@ def test_training_view_pairs_take_the_nearest_other_view_as_reference(tmp_path):
         assert torch.equal(plain[key], same[key]), key
     only_views = trainer.draw_batch(novel, np.random.default_rng(3), 8, 16, views, 1.0)
     assert torch.all(only_views["inp"] == torch.tensor(7 / 255, dtype=torch.float32))
+
+
+def test_validation_compare_averages_only_the_objects_both_runs_validated():
+    """benchmarks/prior_validation_compare.py: the common means leave out an object only one run has, and
+    the per-object rows keep it with no recorded side."""
+    bench = benchmark_module("prior_validation_compare")
+
+    def row(psnr: float) -> dict:
+        return {m: psnr for m in bench.METRICS}
+
+    recorded = {"per_object": {"a": row(20.0), "b": row(22.0), "gone": row(99.0)}}
+    here = {"per_object": {"a": row(21.0), "b": row(24.0), "new": row(0.0)}, "mean_over_objects": {}}
+    out = bench.compare_set(here, recorded)
+    assert out["objects_common"] == 2
+    assert out["mean_over_common"]["psnr_out"] == {"recorded": 21.0, "here": 22.5}
+    assert out["per_object"]["new"]["recorded"] is None and "gone" not in out["per_object"]
