@@ -219,7 +219,7 @@ def coarse_object(folder: Path, args) -> tuple[Path, float]:
         workdir=folder / "work",
         until="coarse",
         profile=args.profile,
-        overrides=parse_sets(args.sets),
+        overrides=args.overrides,
         seed=args.seed,
         in_process=True,
         quiet=True,
@@ -432,7 +432,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         action="store_true",
         help="only add the training views' coarse depth to objects made before it was stored",
     )
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    args.overrides = parse_sets(args.sets)  # once, before any object: a malformed --set fails at the start
+    return args
 
 
 FINISHED = ("object.json", "failed.json")  # an object made, or one whose coarse stage failed (not retried)

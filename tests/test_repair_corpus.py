@@ -228,7 +228,7 @@ def test_corpus_set_values_become_the_runners_overrides():
     args = corpus.parse_args(
         ["--out", "x", "--set", "coarse.lambda_anisotropy=0", "--set", "coarse.floaters=false"]
     )
-    assert corpus.parse_sets(args.sets) == {"coarse.lambda_anisotropy": 0, "coarse.floaters": False}
-    assert corpus.parse_sets([]) == {}
+    assert args.overrides == {"coarse.lambda_anisotropy": 0, "coarse.floaters": False}
+    assert corpus.parse_args(["--out", "x"]).overrides == {}
     with pytest.raises(PipelineError, match="STEP.PARAM=VALUE"):
-        corpus.parse_sets(["coarse.lambda_anisotropy"])
+        corpus.parse_args(["--out", "x", "--set", "coarse.lambda_anisotropy"])
