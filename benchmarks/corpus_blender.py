@@ -10,12 +10,15 @@ JOB.json: ``meshes`` (OBJ paths, joined into one object), ``up`` ("Y" or "Z": th
 (scene folder), ``res``, ``samples``, ``threads``, ``fov_deg``, ``radius``, ``views`` ({"train": [[az, el],
 ...], "test": [...]} in degrees), ``hdri`` (a Blender studio-light name), ``hdri_strength``,
 ``hdri_rotation_deg``, ``sun_strength``, ``sun_elevation_deg``, ``sun_azimuth_deg``, ``roughness`` (< 0 keeps
-the file's), ``seed`` (Cycles' sampling seed), optional ``max_bounces`` (4) and ``adaptive_threshold`` (0.02).
+the file's), ``seed`` (Cycles' sampling seed), optional ``max_bounces`` (4), ``adaptive_threshold`` (0.02) and
+``mesh_only`` (true: write ``mesh_world.npz`` and nothing else, for folders rendered before it was written).
 
 The scene follows the dev sets' protocol (shared tools' make_scene.py): the object's bounding box centred at
 the origin, its bounding sphere scaled to radius 1, +Z up, cameras at ``radius`` looking at the origin with a
 ``fov_deg`` horizontal field of view, Standard view transform, transparent film (alpha = coverage), 8-bit
-RGBA PNGs. Writes ``train/r_i.png``, ``test/r_i.png``, ``transforms_{train,test,val}.json`` and
+RGBA PNGs. Writes ``mesh_world.npz`` (the normalised mesh's triangles in the cameras' world frame, as the dev
+scenes carry it: ``vertices`` [V,3] float32, ``faces`` [F,3] int32), ``train/r_i.png``, ``test/r_i.png``,
+``transforms_{train,test,val}.json`` and
 ``render.json`` (Blender version, mesh statistics, seconds per image); ``render.json`` is written last, so
 its presence means the folder is complete.
 """
@@ -68,6 +71,21 @@ def normalise(obj):
     obj.data.vertices.foreach_set("co", ((co - centre) * scale).astype(np.float32).ravel())
     obj.data.update()
     return {"vertices": n, "faces": len(obj.data.polygons), "scale": float(scale), "centre": centre.tolist()}
+
+
+def write_mesh_world(obj, out):
+    """The normalised mesh as triangles (n-gons split as Blender renders them) in ``out/mesh_world.npz``."""
+    data = obj.data
+    data.calc_loop_triangles()
+    n = len(data.vertices)
+    co = np.empty(n * 3, dtype=np.float32)
+    data.vertices.foreach_get("co", co)
+    tris = np.empty(len(data.loop_triangles) * 3, dtype=np.int32)
+    data.loop_triangles.foreach_get("vertices", tris)
+    os.makedirs(out, exist_ok=True)
+    np.savez_compressed(
+        os.path.join(out, "mesh_world.npz"), vertices=co.reshape(-1, 3), faces=tris.reshape(-1, 3)
+    )
 
 
 def fix_materials(obj, roughness):
@@ -204,6 +222,9 @@ def main():
     t0 = time.process_time()
     obj = import_meshes(job["meshes"], job["up"])
     mesh = normalise(obj)
+    write_mesh_world(obj, job["out"])
+    if job.get("mesh_only"):
+        return
     fix_materials(obj, float(job["roughness"]))
     setup_lighting(job)
     setup_render(job)

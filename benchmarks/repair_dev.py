@@ -16,7 +16,11 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               go-repair-prior-1-noref not tuned; prior3_pretrained: go-repair-prior-3, not tuned;
               prior4_pretrained: go-repair-prior-4, not tuned (prior4_pretrained_alpha: with its alpha as
               a mask target); prior4: tuned; prior4_inside: tuned with
-              the RGB loss inside the training masks only (tune.compact_region inside)
+              the RGB loss inside the training masks only (tune.compact_region inside);
+              prior4_noref_pretrained: go-repair-prior-4-noref (prior-4's chain without the reference
+              input), not tuned
+  no_reference  ablation "without the reference input": the defaults with go-repair-prior-4-noref as
+              tune.prior_choice in place of go-repair-prior-4
   no_alpha_target  ablation "without the alpha target": repair.alpha_weight=0, so a repair prior's alpha is
               no mask target where it repairs either model (elsewhere the same bytes as full)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
@@ -49,6 +53,7 @@ PRIOR = "go-repair-prior-1"  # the repair prior trained on the corpus (issue 34,
 PRIOR2 = "go-repair-prior-2"  # the same prior trained on, to 8000 steps (cosine learning rate)
 PRIOR3 = "go-repair-prior-3"  # prior-2 fine-tuned with the object's pixels weighted up (--inside-weight)
 PRIOR4 = "go-repair-prior-4"  # prior-3 fine-tuned with pairs at the training views (--train-view-share)
+PRIOR4_NOREF = "go-repair-prior-4-noref"  # prior-4's training chain without the reference input
 NO_ALPHA = {"repair.alpha_weight": 0.0}  # as the variants below were measured: the default until 2026-12-05
 VARIANTS = {
     "full": {},
@@ -77,6 +82,8 @@ VARIANTS = {
     },
     "prior4": {"weights.compact_model": PRIOR4, **NO_ALPHA},  # tuned 400 steps, the RGB loss over the view
     "prior4_inside": {"weights.compact_model": PRIOR4, "tune.compact_region": "inside", **NO_ALPHA},
+    "prior4_noref_pretrained": {"weights.compact_model": PRIOR4_NOREF, "tune.finetune": False, **NO_ALPHA},
+    "no_reference": {"tune.prior_choice": PRIOR4_NOREF},  # issue 34's ablation "without the reference input"
     # the ablation without the alpha target: a repair prior's alpha is no mask target (the default before
     # 2026-12-05); scenes where no prior repairs either model are the same bytes as 'full'
     "no_alpha_target": NO_ALPHA,

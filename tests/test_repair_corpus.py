@@ -140,6 +140,29 @@ def test_views_are_seeded_and_in_their_ranges():
     assert np.all(np.abs(gaps - 90.0) < 13.0)
 
 
+def _check_mesh_world(folder: Path) -> None:
+    """The object's ``scene/mesh_world.npz`` is its normalised mesh in the cameras' frame (its silhouettes
+    are the rendered masks), and ``corpus_meshes.py`` writes the same one into a folder that lacks it."""
+    from go_core.mesh.files import read_mesh_npz
+    from go_core.metrics.geometry import silhouette_iou
+    from go_core.scene.loader import load_scene
+
+    path = folder / "scene" / "mesh_world.npz"
+    truth = read_mesh_npz(path)
+    assert np.linalg.norm(truth.vertices, axis=1).max() == pytest.approx(1.0, abs=1e-5)
+    scene = load_scene(folder / "scene")
+    assert min(silhouette_iou(truth, v.camera, v.mask) for v in scene.train) > 0.9
+    path.unlink()
+    assert (
+        benchmark_module("corpus_meshes").main(
+            ["--corpus", str(folder.parents[1]), "--bpy-python", str(BPY_PYTHON)]
+        )
+        == 0
+    )
+    again = read_mesh_npz(path)
+    assert np.array_equal(again.vertices, truth.vertices) and np.array_equal(again.faces, truth.faces)
+
+
 @pytest.mark.skipif(
     not BPY_PYTHON.exists(), reason=f"no Python with the bpy wheel at {BPY_PYTHON} (GO_BPY_PYTHON)"
 )
@@ -194,6 +217,7 @@ def test_corpus_makes_one_object_end_to_end(tmp_path):
         not (folder / "work").exists()
         and json.loads((folder / "object.json").read_text())["novel_pairs"] == 3
     )
+    _check_mesh_world(folder)
     shutil.rmtree(folder / "scene")  # the renders are redone from the same job: same images
     assert corpus.make_object(entry, assets, args)["novel_psnr"] == info["novel_psnr"]
 
