@@ -41,6 +41,8 @@ SHIPPED: dict[str, str] = {  # name -> SHA-256 of priors/<name>.safetensors (doc
     "go-repair-prior-3": "3819272d600582176598492299a20cfa9059702d170111723494fd108c7cc723",
     # go-repair-prior-3 fine-tuned 1500 steps, a quarter of the samples at the training views (identity)
     "go-repair-prior-4": "873c4018c6316f4967c154761c7edf4ee38ceebfa349df6f510e90975295d1a1",
+    # go-repair-prior-4's chain (1-noref → 8000 steps → inside 4 → training views) without the reference
+    "go-repair-prior-4-noref": "4d151e5c69b9980694132a5cd49e4b076661d2b8fc9d73c197204f12f3f2616d",
 }
 
 
