@@ -35,6 +35,7 @@ from mathutils import Matrix
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the repository: go_core
 from go_core.corpus.views import camera_to_world  # noqa: E402  (numpy only)
+from go_core.io.npz import write_npz_deterministic  # noqa: E402  (numpy only)
 
 
 def import_meshes(paths, up):
@@ -83,8 +84,8 @@ def write_mesh_world(obj, out):
     tris = np.empty(len(data.loop_triangles) * 3, dtype=np.int32)
     data.loop_triangles.foreach_get("vertices", tris)
     os.makedirs(out, exist_ok=True)
-    np.savez_compressed(
-        os.path.join(out, "mesh_world.npz"), vertices=co.reshape(-1, 3), faces=tris.reshape(-1, 3)
+    write_npz_deterministic(
+        os.path.join(out, "mesh_world.npz"), {"vertices": co.reshape(-1, 3), "faces": tris.reshape(-1, 3)}
     )
 
 

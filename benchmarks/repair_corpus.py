@@ -189,16 +189,35 @@ def render_object(entry: dict, assets_root: Path, folder: Path, args, views) -> 
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "render_job.json").write_text(json.dumps(job, indent=1))
     c0 = _children_cpu()
-    proc = subprocess.run(
-        [str(args.bpy_python), str(BLENDER_SCRIPT), str(folder / "render_job.json")],
-        capture_output=True,
-        text=True,
-        timeout=3600,
-    )
-    if proc.returncode != 0 or not (scene / "render.json").exists():
-        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-        raise RuntimeError(f"{entry['name']}: Blender failed ({proc.returncode}): {' | '.join(tail)}")
+    run_blender(folder / "render_job.json", args.bpy_python, scene / "render.json", entry["name"])
     return _children_cpu() - c0
+
+
+def run_blender(job_path: Path, bpy_python: Path, done: Path, name: str) -> None:
+    """``corpus_blender.py`` on one job file; an error with Blender's last lines unless it wrote ``done``."""
+    proc = subprocess.run(
+        [str(bpy_python), str(BLENDER_SCRIPT), str(job_path)], capture_output=True, text=True, timeout=3600
+    )
+    if proc.returncode != 0 or not done.exists():
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(f"{name}: Blender failed ({proc.returncode}): {' | '.join(tail)}")
+
+
+def add_meshes(out: Path, bpy_python: Path) -> int:
+    """Write ``scene/mesh_world.npz`` into every object folder rendered before ``corpus_blender.py`` wrote
+    it: the same job with ``mesh_only`` (the same import and normalisation, no render). Returns how many."""
+    made = 0
+    for job_path in sorted((out / "objects").glob("*/render_job.json")):
+        job = json.loads(job_path.read_text())
+        target = Path(job["out"]) / "mesh_world.npz"
+        if target.exists():
+            continue
+        mesh_job = job_path.with_name("mesh_job.json")
+        mesh_job.write_text(json.dumps({**job, "mesh_only": True}, indent=1))
+        run_blender(mesh_job, bpy_python, target, job_path.parent.name)
+        mesh_job.unlink()
+        made += 1
+    return made
 
 
 def parse_sets(sets: list[str]) -> dict:
@@ -432,6 +451,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         action="store_true",
         help="only add the training views' coarse depth to objects made before it was stored",
     )
+    ap.add_argument(
+        "--add-meshes",
+        action="store_true",
+        help="only write scene/mesh_world.npz into objects rendered before it was written",
+    )
     args = ap.parse_args(argv)
     args.overrides = parse_sets(args.sets)  # once, before any object: a malformed --set fails at the start
     return args
@@ -447,6 +471,9 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     if args.add_train_depth:
         return 1 if add_train_depth(args.out) else 0
+    if args.add_meshes:
+        print(f"{add_meshes(args.out, args.bpy_python)} meshes written", flush=True)
+        return 0
     t_start = time.perf_counter()
     assets_root = args.assets if args.assets is not None else fetch_assets(args.cache)
     args.out.mkdir(parents=True, exist_ok=True)

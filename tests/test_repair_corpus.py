@@ -142,7 +142,7 @@ def test_views_are_seeded_and_in_their_ranges():
 
 def _check_mesh_world(folder: Path) -> None:
     """The object's ``scene/mesh_world.npz`` is its normalised mesh in the cameras' frame (its silhouettes
-    are the rendered masks), and ``corpus_meshes.py`` writes the same one into a folder that lacks it."""
+    are the rendered masks), and ``--add-meshes`` writes the same one into a folder that lacks it."""
     from go_core.mesh.files import read_mesh_npz
     from go_core.metrics.geometry import silhouette_iou
     from go_core.scene.loader import load_scene
@@ -153,11 +153,9 @@ def _check_mesh_world(folder: Path) -> None:
     scene = load_scene(folder / "scene")
     assert min(silhouette_iou(truth, v.camera, v.mask) for v in scene.train) > 0.9
     path.unlink()
+    corpus = benchmark_module("repair_corpus")
     assert (
-        benchmark_module("corpus_meshes").main(
-            ["--corpus", str(folder.parents[1]), "--bpy-python", str(BPY_PYTHON)]
-        )
-        == 0
+        corpus.main(["--out", str(folder.parents[1]), "--add-meshes", "--bpy-python", str(BPY_PYTHON)]) == 0
     )
     again = read_mesh_npz(path)
     assert np.array_equal(again.vertices, truth.vertices) and np.array_equal(again.faces, truth.faces)
