@@ -25,7 +25,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               no mask target where it repairs either model (elsewhere the same bytes as full)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
-34 item 4) and the final mesh's geometry against the ground truth (``geometry``, issue 35), plus the wall
+34 item 4), the final mesh's geometry against the ground truth (``geometry``, issue 35), the tune step's
+restorer choice on its held-out folds (``tune_choice``), plus the wall
 and CPU seconds of every step from its manifest (the step's original run, also when cached here). Writes a
 JSON and one contact sheet per scene (rows: truth / coarse / the repaired models of SHEET_ROWS that ran, for
 ``--sheet-views`` test views).
@@ -94,6 +95,8 @@ VARIANTS = {
 }
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")
+# the tune record's restorer choice on the held-out folds (go_core/compact/choice.py), kept per variant
+CHOICE_KEYS = ("restorer_chosen", "consensus_restorer", "prior_psnr", "tuned_psnr", "blend_psnr")
 STEPS = ("scene", "mask", "hull", "coarse", "weights", "loo", "noise_pairs", "tune", "repair", "eval")
 
 
@@ -246,6 +249,7 @@ def main() -> None:
                 else None,
                 "error_split": (metrics.get("error_split") or {}).get("regions"),
                 "geometry": _geometry(metrics.get("geometry")),
+                "tune_choice": {k: (summary.step("tune").record or {}).get(k) for k in CHOICE_KEYS},
             }
             if variant == "full":
                 for step in STEPS:
