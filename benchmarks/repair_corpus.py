@@ -214,8 +214,10 @@ def add_meshes(out: Path, bpy_python: Path) -> int:
             continue
         mesh_job = job_path.with_name("mesh_job.json")
         mesh_job.write_text(json.dumps({**job, "mesh_only": True}, indent=1))
-        run_blender(mesh_job, bpy_python, target, job_path.parent.name)
-        mesh_job.unlink()
+        try:
+            run_blender(mesh_job, bpy_python, target, job_path.parent.name)
+        finally:  # no job file left behind when Blender fails
+            mesh_job.unlink()
         made += 1
     return made
 
