@@ -23,6 +23,9 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               tune.prior_choice in place of go-repair-prior-4
   no_alpha_target  ablation "without the alpha target": repair.alpha_weight=0, so a repair prior's alpha is
               no mask target where it repairs either model (elsewhere the same bytes as full)
+  no_prior    issue 34's comparator: the defaults without a repair prior (tune.prior_choice ''), the tuned
+              realesr repairs both models; the JSON's ``against_no_prior`` sets every variant against it
+  lift30      every repaired view with a twin raised 30 degrees (repair.lift_deg 30)
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4), the final mesh's geometry against the ground truth (``geometry``, issue 35), the tune step's
@@ -177,7 +180,7 @@ def _against(base: str, scenes: dict) -> dict:
     return out
 
 
-def main() -> None:
+def _parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", nargs="+", default=["milk", "alphabet_soup", "basket", "plate", "white_bowl"])
     ap.add_argument("--data", type=Path, default=DEV)
@@ -188,16 +191,12 @@ def main() -> None:
     ap.add_argument("--sheets", type=Path, default=None, help="folder for <scene>_repair_sheet.jpg")
     ap.add_argument("--sheet-views", type=int, default=6)
     ap.add_argument("--seed", type=int, default=0, help="the runs' seed (one per --out file)")
-    args = ap.parse_args()
+    return ap.parse_args()
 
-    import yaml
 
-    from go_pipeline.runner import run_pipeline
-
-    common = {}
-    for item in args.overrides:
-        key, value = item.split("=", 1)
-        common[key] = yaml.safe_load(value)
+def _new_result(args: argparse.Namespace, common: dict) -> dict:
+    """The JSON's header; where ``--out`` exists, its scenes and commands are kept (a resumed or extended
+    run), and this invocation's command is appended with its code and machine."""
     import torch
 
     command = "python benchmarks/repair_dev.py " + " ".join(os.sys.argv[1:])
@@ -221,51 +220,81 @@ def main() -> None:
         result["scenes"] = earlier.get("scenes", {})
         result["commands"] = earlier.get("commands") or ([earlier["command"]] if "command" in earlier else [])
     result["commands"].append(f"{command} (code {code_version()}, {result['cpu']}, torch {result['torch']})")
+    return result
+
+
+def _variant_record(summary, wall_s: float) -> dict:
+    """One variant's figures from its eval step, with where its repair and eval artifacts are."""
+    metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
+    mean = metrics["mean"]
+    repair_dir = summary.step("repair").artifact_dir
+    return {
+        "psnr": mean["psnr"],
+        "ssim": mean["ssim"],
+        "lpips_star": mean["lpips_star"],
+        "model": metrics["model"],
+        "repair_model": metrics.get("repair_model", ""),
+        "run_wall_s": round(wall_s, 1),
+        "eval_dir": str(summary.step("eval").artifact_dir),
+        "repair_dir": str(repair_dir) if (repair_dir / "gaussians.npz").exists() else None,
+        "error_split": (metrics.get("error_split") or {}).get("regions"),
+        "geometry": _geometry(metrics.get("geometry")),
+        "tune_choice": {k: (summary.step("tune").record or {}).get(k) for k in CHOICE_KEYS},
+    }
+
+
+def _record_full_run(entry: dict, summary) -> None:
+    """What only the defaults' run records: every step's wall and CPU, the tune and repair records and the
+    leave-one-out pairs' PSNR."""
+    for step in STEPS:
+        m = read_manifest(summary.step(step).artifact_dir) or {}
+        entry["steps"][step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
+    entry["lora"] = summary.step("tune").record
+    entry["loo_pair_psnr"] = loo_pair_psnr(summary.step("loo").artifact_dir)
+    entry["repair"] = {k: v for k, v in summary.step("repair").record.items() if k != "l_rep_last"}
+
+
+def _summarise(result: dict) -> None:
+    """The full pipeline against its coarse model over the scenes that ran both, and every variant against
+    the tuned realesr and against the defaults without a repair prior (issue 34's comparators)."""
+    done = [s for s in result["scenes"].values() if "lpips_star_gain" in s]
+    if done:
+        result["summary"] = {
+            "scenes": len(done),
+            "lpips_lower_on_every_scene": all(s["lpips_star_gain"] > 0 for s in done),
+            "mean_psnr_change": float(np.mean([s["psnr_change"] for s in done])),
+            "mean_lpips_star_gain": float(np.mean([s["lpips_star_gain"] for s in done])),
+        }
+    result["against_realesr"] = _against("realesr", result["scenes"])
+    result["against_no_prior"] = _against("no_prior", result["scenes"])
+
+
+def main() -> None:
+    args = _parse_args()
+    import yaml
+
+    from go_pipeline.runner import run_pipeline
+
+    common = {}
+    for item in args.overrides:
+        key, value = item.split("=", 1)
+        common[key] = yaml.safe_load(value)
+    result = _new_result(args, common)
     for name in args.scenes:
         scene_dir = args.data / name
         workdir = args.workroot / name
         entry: dict = result["scenes"].get(name) or {"variants": {}, "steps": {}}  # variants add up
         for variant in args.variants:
             t0 = time.perf_counter()
+            overrides = {**common, **VARIANTS[variant]}
             summary = run_pipeline(
-                scene_dir,
-                workdir=workdir,
-                overrides={**common, **VARIANTS[variant]},
-                seed=args.seed,
-                quiet=True,
+                scene_dir, workdir=workdir, overrides=overrides, seed=args.seed, quiet=True
             )
-            metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
-            mean = metrics["mean"]
-            entry["variants"][variant] = {
-                "psnr": mean["psnr"],
-                "ssim": mean["ssim"],
-                "lpips_star": mean["lpips_star"],
-                "model": metrics["model"],
-                "repair_model": metrics.get("repair_model", ""),
-                "run_wall_s": round(time.perf_counter() - t0, 1),
-                "eval_dir": str(summary.step("eval").artifact_dir),
-                "repair_dir": str(summary.step("repair").artifact_dir)
-                if (summary.step("repair").artifact_dir / "gaussians.npz").exists()
-                else None,
-                "error_split": (metrics.get("error_split") or {}).get("regions"),
-                "geometry": _geometry(metrics.get("geometry")),
-                "tune_choice": {k: (summary.step("tune").record or {}).get(k) for k in CHOICE_KEYS},
-            }
+            entry["variants"][variant] = _variant_record(summary, time.perf_counter() - t0)
             if variant == "full":
-                for step in STEPS:
-                    m = read_manifest(summary.step(step).artifact_dir) or {}
-                    entry["steps"][step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
-                entry["lora"] = summary.step("tune").record
-                entry["loo_pair_psnr"] = loo_pair_psnr(summary.step("loo").artifact_dir)
-                entry["repair"] = {
-                    k: v for k, v in summary.step("repair").record.items() if k != "l_rep_last"
-                }
-            print(
-                name,
-                variant,
-                {k: entry["variants"][variant][k] for k in ("psnr", "ssim", "lpips_star")},
-                flush=True,
-            )
+                _record_full_run(entry, summary)
+            figures = {k: entry["variants"][variant][k] for k in ("psnr", "ssim", "lpips_star")}
+            print(name, variant, figures, flush=True)
         v = entry["variants"]
         if "full" in v and "no_repair" in v:
             entry["lpips_star_gain"] = v["no_repair"]["lpips_star"] - v["full"]["lpips_star"]
@@ -277,15 +306,7 @@ def main() -> None:
         result["scenes"][name] = entry
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
-    done = [s for s in result["scenes"].values() if "lpips_star_gain" in s]
-    if done:
-        result["summary"] = {
-            "scenes": len(done),
-            "lpips_lower_on_every_scene": all(s["lpips_star_gain"] > 0 for s in done),
-            "mean_psnr_change": float(np.mean([s["psnr_change"] for s in done])),
-            "mean_lpips_star_gain": float(np.mean([s["lpips_star_gain"] for s in done])),
-        }
-    result["against_realesr"] = _against("realesr", result["scenes"])
+    _summarise(result)
     result["load_average_end"] = os.getloadavg()
     args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
 
