@@ -51,3 +51,33 @@ def test_an_object_twice_is_an_error(tmp_path):
     b = _run_file(tmp_path / "b.json", "hope__box", (21.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
     with pytest.raises(SystemExit, match="hope/box is already in another file"):
         merge_module.merge([a, b], None)
+
+
+def test_repair_dev_sets_every_variant_against_the_comparators():
+    """repair_dev.py's summary: the defaults against the coarse model, and each variant against no_prior
+    (issue 34's comparator): per-scene differences, their mean, and whether LPIPS* is lower everywhere."""
+    dev = benchmark_module("repair_dev")
+
+    def scene(full, no_prior, coarse):
+        variants = {
+            name: {"psnr": p, "lpips_star": lp}
+            for name, (p, lp) in (("full", full), ("no_prior", no_prior), ("no_repair", coarse))
+        }
+        return {
+            "variants": variants,
+            "psnr_change": full[0] - coarse[0],
+            "lpips_star_gain": coarse[1] - full[1],
+        }
+
+    result = {"scenes": {"a": scene((24.0, 15.0), (23.0, 16.0), (22.0, 17.0)),
+                         "b": scene((22.0, 16.5), (22.5, 16.0), (21.0, 17.5))}}  # fmt: skip
+    dev._summarise(result)
+    full = result["against_no_prior"]["full"]
+    assert full["scenes"]["a"] == {"psnr_change": 1.0, "lpips_star_change": -1.0}
+    assert full["scenes"]["b"] == {"psnr_change": -0.5, "lpips_star_change": 0.5}
+    assert full["mean_psnr_change"] == 0.25
+    assert full["lpips_lower_on_every_scene"] is False
+    assert result["against_no_prior"]["no_repair"]["mean_psnr_change"] == -1.25
+    assert result["against_realesr"] == {}  # no scene ran realesr
+    assert result["summary"]["mean_psnr_change"] == 1.5
+    assert result["summary"]["lpips_lower_on_every_scene"] is True
