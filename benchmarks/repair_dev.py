@@ -30,7 +30,8 @@ Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4), the final mesh's geometry against the ground truth (``geometry``, issue 35), the tune step's
 restorer choice on its held-out folds (``tune_choice``), plus the wall
-and CPU seconds of every step from its manifest (the step's original run, also when cached here). Writes a
+and CPU seconds of every step from its manifest (the step's original run, also when cached here), per
+variant and, from the defaults' run, per scene. Writes a
 JSON and one contact sheet per scene (rows: truth / coarse / the repaired models of SHEET_ROWS that ran, for
 ``--sheet-views`` test views).
 
@@ -223,11 +224,23 @@ def _new_result(args: argparse.Namespace, common: dict) -> dict:
     return result
 
 
+def _step_times(summary) -> dict:
+    """Every step's wall and CPU seconds from its manifest (its original run, also when cached here)."""
+    times = {}
+    for step in STEPS:
+        m = read_manifest(summary.step(step).artifact_dir) or {}
+        times[step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
+    return times
+
+
 def _variant_record(summary, wall_s: float) -> dict:
-    """One variant's figures from its eval step, with where its repair and eval artifacts are."""
-    metrics = json.loads((summary.step("eval").artifact_dir / "metrics.json").read_text())
+    """One variant's figures from its eval step, with where its repair and eval artifacts are, its tune
+    step's restorer choice and every step's time."""
+    eval_dir = summary.step("eval").artifact_dir
+    metrics = json.loads((eval_dir / "metrics.json").read_text())
     mean = metrics["mean"]
     repair_dir = summary.step("repair").artifact_dir
+    tune_record = summary.step("tune").record or {}
     return {
         "psnr": mean["psnr"],
         "ssim": mean["ssim"],
@@ -235,20 +248,19 @@ def _variant_record(summary, wall_s: float) -> dict:
         "model": metrics["model"],
         "repair_model": metrics.get("repair_model", ""),
         "run_wall_s": round(wall_s, 1),
-        "eval_dir": str(summary.step("eval").artifact_dir),
+        "eval_dir": str(eval_dir),
         "repair_dir": str(repair_dir) if (repair_dir / "gaussians.npz").exists() else None,
         "error_split": (metrics.get("error_split") or {}).get("regions"),
         "geometry": _geometry(metrics.get("geometry")),
-        "tune_choice": {k: (summary.step("tune").record or {}).get(k) for k in CHOICE_KEYS},
+        "tune_choice": {k: tune_record.get(k) for k in CHOICE_KEYS},
+        "steps": _step_times(summary),
     }
 
 
 def _record_full_run(entry: dict, summary) -> None:
-    """What only the defaults' run records: every step's wall and CPU, the tune and repair records and the
-    leave-one-out pairs' PSNR."""
-    for step in STEPS:
-        m = read_manifest(summary.step(step).artifact_dir) or {}
-        entry["steps"][step] = {"wall_s": m.get("wall_s"), "cpu_s": m.get("cpu_s")}
+    """What only the defaults' run records: every step's wall and CPU (as the scene's), the tune and repair
+    records and the leave-one-out pairs' PSNR."""
+    entry["steps"] = _step_times(summary)
     entry["lora"] = summary.step("tune").record
     entry["loo_pair_psnr"] = loo_pair_psnr(summary.step("loo").artifact_dir)
     entry["repair"] = {k: v for k, v in summary.step("repair").record.items() if k != "l_rep_last"}
@@ -271,14 +283,10 @@ def _summarise(result: dict) -> None:
 
 def main() -> None:
     args = _parse_args()
-    import yaml
-
+    from go_pipeline.pipeline import parse_set_argument
     from go_pipeline.runner import run_pipeline
 
-    common = {}
-    for item in args.overrides:
-        key, value = item.split("=", 1)
-        common[key] = yaml.safe_load(value)
+    common = dict(parse_set_argument(item) for item in args.overrides)
     result = _new_result(args, common)
     for name in args.scenes:
         scene_dir = args.data / name
