@@ -26,6 +26,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
   no_prior    issue 34's comparator: the defaults without a repair prior (tune.prior_choice ''), the tuned
               realesr repairs both models; the JSON's ``against_no_prior`` sets every variant against it
   lift30      every repaired view with a twin raised 30 degrees (repair.lift_deg 30)
+  repair_x075, repair_x050  the repair's schedule compressed to 3/4 and 1/2 of its length (every iteration
+              count of it scaled alike: repair_schedule), for the speed-against-error trade
 Test-view PSNR / SSIM / LPIPS* (VGG, x100) from each variant's eval metrics.json, with where the error is
 (``error_split``: outside the true silhouette, on surface a training view sees, on surface none sees; issue
 34 item 4), the final mesh's geometry against the ground truth (``geometry``, issue 35), the tune step's
@@ -60,6 +62,27 @@ PRIOR3 = "go-repair-prior-3"  # prior-2 fine-tuned with the object's pixels weig
 PRIOR4 = "go-repair-prior-4"  # prior-3 fine-tuned with pairs at the training views (--train-view-share)
 PRIOR4_NOREF = "go-repair-prior-4-noref"  # prior-4's training chain without the reference input
 NO_ALPHA = {"repair.alpha_weight": 0.0}  # as the variants below were measured: the default until 2026-12-05
+# the repair's iteration counts that set its schedule: scaled together by repair_schedule
+SCHEDULE = (
+    "iterations",
+    "repair_iterations",
+    "refresh_every",
+    "densify_from",
+    "densify_until",
+    "densify_every",
+)
+
+
+def repair_schedule(fraction: float) -> dict[str, int]:
+    """--set overrides that compress the repair's default schedule to ``fraction`` of its length: every
+    iteration count scaled alike, so the repair makes as many refreshes and densifications, each over
+    fewer iterations (the same for the consensus's second model, which runs the same settings)."""
+    from go_core.repair.settings import RepairSettings
+
+    defaults = RepairSettings()
+    return {f"repair.{name}": max(1, round(getattr(defaults, name) * fraction)) for name in SCHEDULE}
+
+
 VARIANTS = {
     "full": {},
     "pretrained": {"tune.finetune": False},
@@ -96,6 +119,9 @@ VARIANTS = {
     "lift30": {"repair.lift_deg": 30.0},
     # issue 34's comparator: the tuned realesr repairs both models, never a repair prior
     "no_prior": {"tune.prior_choice": ""},
+    # the repair's schedule compressed to three quarters and a half of its length (speed against error)
+    "repair_x075": repair_schedule(0.75),
+    "repair_x050": repair_schedule(0.5),
 }
 # contact-sheet rows after truth and coarse, when they ran
 SHEET_ROWS = ("realesr", "full", "prior", "prior2_pretrained")

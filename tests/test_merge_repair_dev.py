@@ -81,3 +81,28 @@ def test_repair_dev_sets_every_variant_against_the_comparators():
     assert result["against_realesr"] == {}  # no scene ran realesr
     assert result["summary"]["mean_psnr_change"] == 1.5
     assert result["summary"]["lpips_lower_on_every_scene"] is True
+
+
+def test_compressed_repair_schedule_scales_every_count_alike():
+    """repair_dev.py's repair_x050 / repair_x075: each iteration count of the repair's default schedule
+    times the fraction (so as many refreshes and densifications), and settings the step accepts."""
+    from dataclasses import replace
+
+    from go_core.repair.settings import RepairSettings
+
+    dev = benchmark_module("repair_dev")
+    half = dev.VARIANTS["repair_x050"]
+    assert half == {
+        "repair.iterations": 2000,
+        "repair.repair_iterations": 1400,
+        "repair.densify_from": 200,
+        "repair.densify_until": 1800,
+        "repair.densify_every": 50,
+        "repair.refresh_every": 100,
+    }
+    defaults = RepairSettings()
+    short = replace(defaults, **{key.split(".")[1]: value for key, value in half.items()})
+    assert short.check() == []
+    refreshes = [-(-s.repair_iterations // s.refresh_every) for s in (defaults, short)]
+    assert refreshes[0] == refreshes[1] == 14
+    assert dev.VARIANTS["repair_x075"]["repair.iterations"] == 3000
