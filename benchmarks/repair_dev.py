@@ -18,7 +18,8 @@ Per scene, one work dir and the real runner (`run_pipeline`, cached steps shared
               a mask target); prior4: tuned; prior4_inside: tuned with
               the RGB loss inside the training masks only (tune.compact_region inside);
               prior4_noref_pretrained: go-repair-prior-4-noref (prior-4's chain without the reference
-              input), not tuned
+              input), not tuned (prior4_noref_pretrained_alpha: with its alpha as a mask target, i.e. the
+              `prior` profile without the reference input)
   no_reference  ablation "without the reference input": the defaults with go-repair-prior-4-noref as
               tune.prior_choice in place of go-repair-prior-4
   no_alpha_target  ablation "without the alpha target": repair.alpha_weight=0, so a repair prior's alpha is
@@ -111,6 +112,11 @@ VARIANTS = {
     "prior4": {"weights.compact_model": PRIOR4, **NO_ALPHA},  # tuned 400 steps, the RGB loss over the view
     "prior4_inside": {"weights.compact_model": PRIOR4, "tune.compact_region": "inside", **NO_ALPHA},
     "prior4_noref_pretrained": {"weights.compact_model": PRIOR4_NOREF, "tune.finetune": False, **NO_ALPHA},
+    "prior4_noref_pretrained_alpha": {  # the `prior` profile without the reference input
+        "weights.compact_model": PRIOR4_NOREF,
+        "tune.finetune": False,
+        "repair.alpha_weight": 1.0,
+    },
     "no_reference": {"tune.prior_choice": PRIOR4_NOREF},  # issue 34's ablation "without the reference input"
     # the ablation without the alpha target: a repair prior's alpha is no mask target (the default before
     # 2026-12-05); scenes where no prior repairs either model are the same bytes as 'full'
