@@ -4,7 +4,8 @@
 first 2800 also L_rep = decay · w(t) · λ(π) · (L1 + L2 + LPIPS) on repaired novel views (decay 1.0 → 0.1)
 drawn from the middle 80% of the arcs between reference views on the ellipse of the TRAINING cameras
 (test cameras never shape a path); repaired images refreshed every 200 iterations, two per arc; the
-authors' densification schedule (every 100 from 400 to 3600, opacity reset every 500, prune below 0.02).
+authors' densification schedule (every 100 from 400 to 3600, prune below 0.02; no opacity reset, which
+``repair.opacity_reset_every`` can turn on).
 
 Skips honestly (``repair.json`` ``{"status": "skipped", "reason": ...}``, no ``gaussians.npz``; downstream
 steps then use the coarse model) when the tune step had no weights, or for the "no repair" ablation
