@@ -5,7 +5,8 @@ elements). Threads that sleep at once (``OMP_WAIT_POLICY=PASSIVE``) must be woke
 a VM costs more than a small op's work (coarse iteration, 2 threads: ~20% slower than a short spin).
 libgomp's default spin (~3 ms) and ``ACTIVE`` burn the time slices that other processes need: 2–7x slower
 beside a busy process. A spin of ~10 µs (``GOMP_SPINCOUNT=1000``) bridges the gaps between the regions of
-an iteration and costs nothing measurable beside busy processes (benchmarks/omp_wait.py, docs/rendering.md).
+an iteration and costs nothing measurable beside busy processes (benchmarks/archive/omp_wait.py,
+docs/rendering.md).
 """
 
 from __future__ import annotations

@@ -6,10 +6,10 @@ from __future__ import annotations
 import gzip
 import struct
 
+import _spz_reader as roundtrip
 import numpy as np
 import pytest
 import torch
-from _benchmark_module import benchmark_module
 
 from go_core.camera import Camera
 from go_core.formats import FILE_NAMES, encode
@@ -19,7 +19,6 @@ from go_core.formats.spz import COLOR_SCALE, MAGIC, position_step
 from go_core.gaussians import SH_C0, Gaussians
 from go_core.render.synthetic import random_scene
 
-roundtrip = benchmark_module("export_roundtrip")
 needs_reader = pytest.mark.skipif(
     roundtrip.reader_missing() is not None, reason=str(roundtrip.reader_missing())
 )

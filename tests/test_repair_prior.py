@@ -291,22 +291,6 @@ def test_inside_weighted_l1_against_hand_computed_values():
     )
 
 
-def test_single_pass_colour_map_recovers_an_affine_map():
-    """benchmarks/prior_single_pass.py: least squares recovers an exact affine map, the ridge pulls it to the
-    identity, and the map acts only where the object is (alpha), never on the white background."""
-    bench = benchmark_module("prior_single_pass")
-    rng = np.random.default_rng(3)
-    x = rng.uniform(0.1, 0.9, (2, 16, 16, 3))
-    true = np.array([[0.9, 0.05, 0.0], [0.1, 0.8, 0.05], [0.0, 0.1, 0.95], [0.02, -0.01, 0.03]])
-    y = [np.c_[xi.reshape(-1, 3), np.ones(256)].dot(true).reshape(16, 16, 3) for xi in x]
-    masks = [np.ones((16, 16), bool)] * 2
-    np.testing.assert_allclose(bench.fit_colour_map(list(x), y, masks), true, atol=1e-9)
-    np.testing.assert_allclose(bench.fit_colour_map(list(x), y, masks, ridge=1e6), np.eye(4, 3), atol=1e-5)
-    image = x[0].astype(np.float32)
-    np.testing.assert_array_equal(bench.apply_colour_map(true, image, np.zeros((16, 16))), image)
-    np.testing.assert_allclose(bench.apply_colour_map(true, image, np.ones((16, 16))), y[0], atol=1e-6)
-
-
 def _rot_y(degrees: float) -> np.ndarray:
     t = np.radians(degrees)
     m = np.eye(4)
@@ -349,19 +333,3 @@ def test_training_view_pairs_take_the_nearest_other_view_as_reference(tmp_path):
         assert torch.equal(plain[key], same[key]), key
     only_views = trainer.draw_batch(novel, np.random.default_rng(3), 8, 16, views, 1.0)
     assert torch.all(only_views["inp"] == torch.tensor(7 / 255, dtype=torch.float32))
-
-
-def test_validation_compare_averages_only_the_objects_both_runs_validated():
-    """benchmarks/prior_validation_compare.py: the common means leave out an object only one run has, and
-    the per-object rows keep it with no recorded side."""
-    bench = benchmark_module("prior_validation_compare")
-
-    def row(psnr: float) -> dict:
-        return {m: psnr for m in bench.METRICS}
-
-    recorded = {"per_object": {"a": row(20.0), "b": row(22.0), "gone": row(99.0)}}
-    here = {"per_object": {"a": row(21.0), "b": row(24.0), "new": row(0.0)}, "mean_over_objects": {}}
-    out = bench.compare_set(here, recorded)
-    assert out["objects_common"] == 2
-    assert out["mean_over_common"]["psnr_out"] == {"recorded": 21.0, "here": 22.5}
-    assert out["per_object"]["new"]["recorded"] is None and "gone" not in out["per_object"]

@@ -1,15 +1,14 @@
 """The run report as a browser shows it: headless Chromium (Debian's `chromium`) renders the report.html of
 the built-in example (test profile); the screenshot shows its images, and its interactive 3D viewer, put
-on a test camera, draws what go-pipeline's own rasterizer draws from it (benchmarks/report_screenshot.py)."""
+on a test camera, draws what go-pipeline's own rasterizer draws from it (tests/_browser.py)."""
 
 from __future__ import annotations
 
+import _browser as shot
 import numpy as np
 import pytest
 import torch
-from _benchmark_module import benchmark_module
 
-shot = benchmark_module("report_screenshot")
 needs_chromium = pytest.mark.skipif(
     shot.find_chromium() is None, reason="needs chromium (Debian: apt-get install chromium)"
 )

@@ -32,7 +32,7 @@ slack shows from the true cameras too: coverage is already ~0.999 there and Adam
 along the flat objective, moving the dev scenes' true cameras by 2-18 px (the flat plate most). A prior on
 each camera's turn (``rotation_sigma_deg``, off by default) holds them (1°: 0.5-5 px), at the price of
 stopping 5° starts nearer where they began (benchmarks/results/pose_refine_dev.md).
-~50 CPU s at 256 px, one thread (benchmarks/pose_refine_dev.py, docs/coarse.md).
+~50 CPU s at 256 px, one thread (benchmarks/archive/pose_refine_dev.py, docs/coarse.md).
 """
 
 from __future__ import annotations
