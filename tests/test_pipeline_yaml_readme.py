@@ -1,4 +1,5 @@
-"""The README's `--set` spellings (ablations) must stay valid params of pipeline.yaml."""
+"""The `--set` spellings of the README (the paper's ablations) and of docs/ablations.md (every other switch)
+must stay valid params of pipeline.yaml."""
 
 from __future__ import annotations
 
@@ -8,11 +9,17 @@ from pathlib import Path
 from go_pipeline.pipeline import load_pipeline, parse_set_argument
 
 README = Path(__file__).resolve().parents[1] / "README.md"
+ABLATIONS = Path(__file__).resolve().parents[1] / "docs" / "ablations.md"
 
 
-def test_every_set_spelling_in_the_readme_is_a_valid_override():
-    spellings = re.findall(r"`--set ([a-z_]+\.[a-z_]+=[^`]+)`", README.read_text())
-    assert len(spellings) >= 10  # the ablation table
+def spellings_of(path: Path) -> list[str]:
+    return re.findall(r"`--set ([a-z_]+\.[a-z_]+=[^`]+)`", path.read_text())
+
+
+def test_every_set_spelling_in_the_readme_and_the_ablations_page_is_a_valid_override():
+    assert len(spellings_of(README)) >= 10  # the paper's ablation table
+    assert len(spellings_of(ABLATIONS)) >= 30  # every other switch
+    spellings = spellings_of(README) + spellings_of(ABLATIONS)
     pipeline = load_pipeline()
     for text in spellings:
         dotted, value = parse_set_argument(text)
