@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import numpy as np
 import pytest
 
 from go_core.camera import Camera
+from go_core.errors import PoseCheckError
 from go_core.poses.check import check_poses
 from go_core.poses.epipolar import epipolar_distances
 from go_core.poses.sfm import reconstruct
@@ -82,6 +84,48 @@ def test_real_scene_passes_and_flags_a_rotated_camera(shared_data):
     assert bad.flagged == [views[k].name]
     # every figure repeats exactly (COLMAP's threaded SIFT extraction moved them from run to run)
     assert check_poses(views).to_dict() == report.to_dict()
+
+
+@pytest.fixture(scope="module")
+def ethiopian_head(shared_data):
+    scene = load_scene(shared_data / "real" / "ethiopian_head")
+    return scene.train + scene.test
+
+
+def test_check_matches_sift_on_one_thread(ethiopian_head, monkeypatch):
+    """The check's SIFT matching runs on one COLMAP thread (issue 82: 343 vs 344 tracks with two), whatever
+    ``num_threads`` asks for; SfM's matching keeps its threads."""
+    import pycolmap
+
+    seen = []
+    real = pycolmap.match_exhaustive
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["matching_options"].num_threads)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pycolmap, "match_exhaustive", spy)
+    check_poses(ethiopian_head[:4], num_threads=4)
+    assert seen == [1]
+    with contextlib.suppress(PoseCheckError):  # two views may be too few to reconstruct, after matching
+        reconstruct(ethiopian_head[:2], num_threads=3)
+    assert seen == [1, 3]
+
+
+def test_check_repeats_exactly_under_load(ethiopian_head):
+    """check_poses three times, the third with another process spinning on a core: identical reports."""
+    import subprocess
+    import sys
+
+    first = check_poses(ethiopian_head).to_dict()
+    assert first["num_tracks"] > 100
+    assert check_poses(ethiopian_head).to_dict() == first
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        assert check_poses(ethiopian_head).to_dict() == first
+    finally:
+        busy.kill()
+        busy.wait()
 
 
 def test_triangulation_and_epipolar_geometry_exact():

@@ -26,6 +26,7 @@ import numpy as np
 from go_core.errors import EmptyHullError, PoseCheckError
 from go_core.poses.epipolar import epipolar_distances
 from go_core.poses.matching import (
+    CHECK_MATCH_THREADS,
     DEFAULT_MATCHER,
     LEARNED_MIN_THRESHOLD_PX,
     extract_and_match,
@@ -193,6 +194,7 @@ def check_poses(
             num_threads,
             matcher=matcher,
             pair_filter=lambda i, j: angles[i, j] <= max_pair_angle_deg,
+            match_threads=CHECK_MATCH_THREADS,  # a verdict that repeats exactly
         )
     floor = LEARNED_MIN_THRESHOLD_PX if matcher == "disk" else 0.0
     thr = [max(threshold_px * max(c.width, c.height) / reference_size, floor) for c in cameras]

@@ -57,6 +57,11 @@ DEFAULT_MATCHER = "sift"
 # verification passes them: real/ethiopian_head (12 views) had 53 of 66 verified pairs wrong at 0.1, 0 of
 # 10 at 0.9 (docs/evaluation.md)
 CHECK_MIN_CONFIDENCE = 0.1
+# COLMAP's SIFT matcher threads for the check. With two, the same views once gave 343 and then 344 tracks
+# (issue 82). Several matcher threads are the only concurrent work left in the check (extraction runs on one
+# thread, RANSAC is seeded): each builds and searches FAISS IVF indexes (k-means, 4 of ~100 lists probed:
+# approximate, so a tiny numeric difference can move a match) through the wheel's static OpenBLAS at once.
+CHECK_MATCH_THREADS = 1
 ESTIMATE_MIN_CONFIDENCE = 0.9
 
 
@@ -73,7 +78,8 @@ def _verification(seed: int):
 def _sift_into_database(
     views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model, seed
 ):
-    """pycolmap SIFT extraction (inside the masks) and exhaustive matching into ``work/database.db``."""
+    """pycolmap SIFT extraction (inside the masks) and exhaustive matching into ``work/database.db``,
+    matching on ``num_threads`` threads."""
     import pycolmap
 
     db_path = work / "database.db"
@@ -220,6 +226,7 @@ def extract_and_match(
     pair_filter=None,
     seed: int = 0,
     min_confidence: float = CHECK_MIN_CONFIDENCE,
+    match_threads: int | None = None,
 ) -> tuple[list[np.ndarray], dict[tuple[int, int], np.ndarray]]:
     """Features + exhaustive matching + geometric verification with pycolmap.
 
@@ -229,7 +236,8 @@ def extract_and_match(
     convention = ours: pixel centres at +0.5) and {(i, j): inlier match index pairs [M,2]} for i < j.
     ``pair_filter(i, j)``: the pairs the learned matcher runs on (default all; SIFT always matches all).
     ``seed``: the RANSAC seed of the verification. ``min_confidence``: LightGlue matches at or below it are
-    dropped (``disk`` only; CHECK_MIN_CONFIDENCE / ESTIMATE_MIN_CONFIDENCE).
+    dropped (``disk`` only; CHECK_MIN_CONFIDENCE / ESTIMATE_MIN_CONFIDENCE). ``match_threads``: the threads
+    of COLMAP's SIFT matcher (default ``num_threads``); only 1 repeats exactly (CHECK_MATCH_THREADS).
     """
     import pycolmap
 
@@ -238,8 +246,9 @@ def extract_and_match(
     names, have_masks = _write_inputs(views, work, dilate_px, use_masks)
     _quiet(pycolmap)
     if matcher == "sift":
+        threads = num_threads if match_threads is None else match_threads
         _sift_into_database(
-            views, work, names, have_masks, max_features, num_threads, peak_threshold, camera_model, seed
+            views, work, names, have_masks, max_features, threads, peak_threshold, camera_model, seed
         )
     else:
         _learned_into_database(

@@ -8,6 +8,17 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from go_pipeline.reporting.grid import (
+    COLOUR_BAR_LABEL,
+    ERROR_VMAX,
+    GRID_CSS,
+    PER_BAND,
+    ROW_LABELS,
+    grid_tiles,
+    html_test_grid,
+    view_title,
+)
+
 GRID_CAPTION = "columns: the test views; rows: ground truth, render, error |render - GT|"
 GEOMETRY_CAPTION = (
     "the first test view: ground-truth mesh | the final model's mesh (vertex colours) | "
@@ -101,58 +112,41 @@ def plot_views(report: dict, path: Path) -> Path | None:
     return path
 
 
-ERROR_VMAX = 0.5  # go_core.metrics.evaluate.error_map's default saturation (mean absolute RGB error)
-ROW_LABELS = ("ground truth", "render", "|render - GT|")
-
-
-def grid_columns(n_views: int, grid_views: int) -> list[int]:
-    """The test views (indices) in the eval step's test_grid.png: evenly spread, as steps/eval.py picks."""
-    import numpy as np
-
-    if n_views <= 0:
-        return []
-    return [int(i) for i in np.unique(np.linspace(0, n_views - 1, min(n_views, grid_views)).round())]
-
-
 def plot_test_grid(report: dict, path: Path) -> Path | None:
-    """The eval step's test grid redrawn with its columns named (view, PSNR), its rows named and a colour
-    bar for the error row (magma, 0 to ERROR_VMAX mean absolute RGB error)."""
-    grid_file = report.get("images", {}).get("test_grid")
-    metrics = report.get("metrics")
-    if not grid_file or not Path(grid_file).is_file() or not metrics or not metrics["views"]:
+    """The eval step's test grid redrawn for report.md with its columns named (view, PSNR), its rows named
+    and a colour bar for the error row (magma, 0 to ERROR_VMAX mean absolute RGB error) below the grid.
+    Constrained layout gives every title, label and the bar their own space (no overlap)."""
+    found = grid_tiles(report)
+    if found is None:
         return None
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
     from matplotlib import colormaps
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
-    from PIL import Image
 
-    grid = np.asarray(Image.open(grid_file).convert("RGB"))
-    eval_params = next((s["params"] for s in report["steps"] if s["name"] == "eval"), {})
-    cols = grid_columns(len(metrics["views"]), int(eval_params.get("grid_views", 8)))
-    if not cols:
-        return None
-    cell_w, cell_h = grid.shape[1] // len(cols), grid.shape[0] // 3
-    per_row = min(len(cols), 8)
-    bands = -(-len(cols) // per_row)
+    views, tiles = found
+    per_row = min(len(views), PER_BAND)
+    bands = -(-len(views) // per_row)
     fig, axes = plt.subplots(
-        3 * bands, per_row, figsize=(1.6 * per_row + 1.2, 1.7 * 3 * bands + 0.3), dpi=100, squeeze=False
+        3 * bands,
+        per_row,
+        figsize=(1.6 * per_row + 1.2, 1.7 * 3 * bands + 0.8),
+        dpi=100,
+        squeeze=False,
+        layout="constrained",
     )
     for ax in axes.flat:
         ax.axis("off")
-    for j, view_index in enumerate(cols):
-        view = metrics["views"][view_index]
+    for j, (view, cell) in enumerate(zip(views, tiles, strict=True)):
         band, c = divmod(j, per_row)
         for r in range(3):
             ax = axes[3 * band + r, c]
-            ax.imshow(grid[r * cell_h : (r + 1) * cell_h, j * cell_w : j * cell_w + cell_w - 2])
+            ax.imshow(cell[r])
             if r == 0:
-                psnr = "n/a" if view["psnr"] is None else f"{view['psnr']:.1f} dB"
-                ax.set_title(f"{view['name']}\n{psnr}", fontsize=8)
+                ax.set_title("\n".join(view_title(view)), fontsize=8)
             if c == 0:
                 ax.axis("on")
                 ax.set_xticks([])
@@ -162,11 +156,12 @@ def plot_test_grid(report: dict, path: Path) -> Path | None:
                 ax.set_ylabel(ROW_LABELS[r], fontsize=8)
     bar = fig.colorbar(
         ScalarMappable(Normalize(0.0, ERROR_VMAX), colormaps["magma"]),
-        ax=axes[2::3, :].ravel().tolist(),
-        fraction=0.03,
-        pad=0.02,
+        ax=axes[-1, :].tolist(),
+        location="bottom",
+        shrink=0.5,
+        aspect=40,
     )
-    bar.set_label("mean |RGB error|", fontsize=8)
+    bar.set_label(f"{ROW_LABELS[2]} row: {COLOUR_BAR_LABEL}", fontsize=8)
     bar.ax.tick_params(labelsize=7)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
@@ -214,10 +209,12 @@ def plot_curves(report: dict, path: Path) -> Path | None:
     return path
 
 
-def _assets(report: dict, out_dir: Path) -> dict[str, str]:
+def _assets(report: dict, out_dir: Path, grid_png: bool = True) -> dict[str, str]:
+    """The report's pictures written into ``out_dir``, by label; ``grid_png``: also the labelled test grid
+    as a picture (report.md; report.html lays its grid out in HTML)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     assets: dict[str, str] = {}
-    if plot_test_grid(report, out_dir / "test_grid.png"):
+    if grid_png and plot_test_grid(report, out_dir / "test_grid.png"):
         assets["grid"] = "test_grid.png"
     for key, name in (
         ("turntable", "turntable.gif"),
@@ -379,7 +376,7 @@ def html_report(report: dict) -> str:
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="go-report-") as tmp:
-        assets = _assets(report, Path(tmp))
+        assets = _assets(report, Path(tmp), grid_png=False)
         uris = {k: _data_uri(Path(tmp) / v) for k, v in assets.items()}
     sh, sr, vh, vr = _tables(report)
     e = html.escape
@@ -395,7 +392,7 @@ def html_report(report: dict) -> str:
         "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}table{border-collapse:collapse}"
         "td,th{border:1px solid #ccc;padding:2px 8px;text-align:right}td:first-child{text-align:left}"
         "img{max-width:100%}.steps td:nth-child(2){text-align:left}"
-        ".warn{background:#fdd;border:2px solid #c00;padding:.5em 1em}</style>"
+        ".warn{background:#fdd;border:2px solid #c00;padding:.5em 1em}" + GRID_CSS + "</style>"
         "</head><body>",
         f"<h1>Run report: {e(report['scene']['name'])}</h1><p>Generated {e(report['generated'])}.</p>",
         *[f"<p class='warn'>{e(w)}</p>" for w in report.get("warnings", [])],
@@ -403,8 +400,9 @@ def html_report(report: dict) -> str:
         *[f"<li>{e(x)}</li>" for x in _summary_lines(report)],
         "</ul>",
     ]
-    if "grid" in uris:
-        parts.append(f"<h2>Test views</h2><p>{e(GRID_CAPTION)}</p><img src='{uris['grid']}'>")
+    grid = html_test_grid(report)
+    if grid:
+        parts.append(f"<h2>Test views</h2><p>{e(GRID_CAPTION)}</p>{grid}")
     viewer = _viewer_block(report)
     if viewer:
         parts.append("<h2>3D viewer</h2>" + viewer)
