@@ -10,7 +10,8 @@ JOB.json: ``meshes`` (OBJ paths, joined into one object), ``up`` ("Y" or "Z": th
 (scene folder), ``res``, ``samples``, ``threads``, ``fov_deg``, ``radius``, ``views`` ({"train": [[az, el],
 ...], "test": [...]} in degrees), ``hdri`` (a Blender studio-light name), ``hdri_strength``,
 ``hdri_rotation_deg``, ``sun_strength``, ``sun_elevation_deg``, ``sun_azimuth_deg``, ``roughness`` (< 0 keeps
-the file's), ``seed`` (Cycles' sampling seed), optional ``max_bounces`` (4), ``adaptive_threshold`` (0.02) and
+the file's), ``seed`` (Cycles' sampling seed), optional ``metallic`` (0: dielectric), ``max_bounces`` (4),
+``adaptive_threshold`` (0.02) and
 ``mesh_only`` (true: write ``mesh_world.npz`` and nothing else, for folders rendered before it was written).
 
 The scene follows the dev sets' protocol (shared tools' make_scene.py): the object's bounding box centred at
@@ -89,15 +90,16 @@ def write_mesh_world(obj, out):
     )
 
 
-def fix_materials(obj, roughness):
-    """Dielectric materials, optional roughness override, cubic texture filtering."""
+def fix_materials(obj, roughness, metallic=0.0):
+    """Dielectric materials (or ``metallic`` > 0 for a metal), optional roughness override, cubic texture
+    filtering."""
     for slot in obj.material_slots:
         mat = slot.material
         if mat is None or not mat.use_nodes:
             continue
         for node in mat.node_tree.nodes:
             if node.type == "BSDF_PRINCIPLED":
-                node.inputs["Metallic"].default_value = 0.0
+                node.inputs["Metallic"].default_value = float(metallic)
                 if roughness >= 0:
                     node.inputs["Roughness"].default_value = roughness
             if node.type == "TEX_IMAGE" and node.image is not None:
@@ -226,7 +228,7 @@ def main():
     write_mesh_world(obj, job["out"])
     if job.get("mesh_only"):
         return
-    fix_materials(obj, float(job["roughness"]))
+    fix_materials(obj, float(job["roughness"]), float(job.get("metallic", 0.0)))
     setup_lighting(job)
     setup_render(job)
     cam = make_camera(float(job["fov_deg"]))

@@ -17,5 +17,6 @@ def benchmark_module(name: str) -> ModuleType:
         sys.path.append(str(BENCHMARKS))
     spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # a dataclass of the script looks its module up by name
     spec.loader.exec_module(module)
     return module
