@@ -239,6 +239,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--workroot", type=Path, required=True, help="work dirs and kept records")
     ap.add_argument("--jobs", type=int, default=1, help="scenes at once (Ray tasks, one thread each)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--code", default=None, help="read and write the records of this code version (default: HEAD)"
+    )
+    ap.add_argument("--kept-only", action="store_true", help="run nothing: tabulate the kept records")
     ap.add_argument("--out", type=Path, required=True, help="the JSON; the plot goes beside it (.png)")
     args = ap.parse_args(argv)
     labels = [p.label for p in args.profiles]
@@ -267,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     scenes = select_scenes(args)
     labels = [p.label for p in args.profiles]
-    code = code_version()
+    code = args.code or code_version()
     t0 = time.perf_counter()
     results = run_all(scenes, args, code)
     table = paired_table(results, labels)
