@@ -257,9 +257,8 @@ def select_scenes(args: argparse.Namespace) -> dict[str, Path]:
     manifest = load_manifest()
     kind = kinds(manifest)
     found = scene_folders(args.cache.expanduser(), args.shared, manifest)
-    chosen = {
-        n: f for n, f in found.items() if kind[n] in args.kinds and (not args.scenes or n in args.scenes)
-    }
+    order = args.scenes or list(found)  # --scenes also sets the order the scenes start in
+    chosen = {n: found[n] for n in order if n in found and kind[n] in args.kinds}
     if not chosen:
         raise SystemExit(f"error: no scene of the validation set found in {args.cache} / {args.shared}")
     return chosen
