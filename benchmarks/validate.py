@@ -86,7 +86,7 @@ def step_times(summary) -> dict[str, dict[str, float | None]]:
     return out
 
 
-def run_one(scene: Path, workdir: Path, profile: Profile, seed: int) -> dict[str, Any]:
+def run_one(scene: Path, workdir: Path, profile: Profile, seed: int, device: str = "auto") -> dict[str, Any]:
     """One scene under one profile: its eval metrics and step times, or the error that stopped it."""
     from go_pipeline.runner import run_pipeline
 
@@ -98,6 +98,7 @@ def run_one(scene: Path, workdir: Path, profile: Profile, seed: int) -> dict[str
             profile=profile.profile,
             overrides=profile.overrides,
             seed=seed,
+            device=device,
             in_process=True,
             quiet=True,
         )
@@ -124,20 +125,40 @@ def record_path(workroot: Path, scene: str, label: str) -> Path:
     return workroot / "records" / scene / f"{label}.json"
 
 
+def kept_record(path: Path, key: dict) -> dict | None:
+    """The kept result at ``path`` if it was made with the same key (spec, code, seed) and finished."""
+    if not path.exists():
+        return None
+    kept = json.loads(path.read_text())
+    return kept["result"] if kept.get("key") == key and kept["result"]["status"] == "ok" else None
+
+
 def run_scene(
-    scene_name: str, scene: str, workroot: str, profiles: list[Profile], seed: int, code: str
+    scene_name: str,
+    scene: str,
+    workroot: str,
+    profiles: list[Profile],
+    seed: int,
+    code: str,
+    kept_only: bool = False,
+    device: str = "auto",
 ) -> dict:
-    """Every profile on one scene (reusing a kept record of the same spec, code and seed)."""
+    """Every profile on one scene, reusing a kept record of the same key; with ``kept_only``, running
+    nothing (a profile without a kept record is reported as not run)."""
     out = {}
     for profile in profiles:
         path = record_path(Path(workroot), scene_name, profile.label)
-        key = {"spec": profile.spec(), "code": code, "seed": seed}
-        if path.exists():
-            kept = json.loads(path.read_text())
-            if kept.get("key") == key and kept["result"]["status"] == "ok":
-                out[profile.label] = kept["result"]
-                continue
-        result = run_one(Path(scene), Path(workroot) / "work" / scene_name, profile, seed)
+        key = {
+            "spec": profile.spec(),
+            "code": code,
+            "seed": seed,
+            **({"device": device} if device != "auto" else {}),
+        }
+        kept = kept_record(path, key)
+        if kept is not None or kept_only:
+            out[profile.label] = kept or {"status": "not run", "error": "no kept record"}
+            continue
+        result = run_one(Path(scene), Path(workroot) / "work" / scene_name, profile, seed, device)
         result["threads"] = int(os.environ.get("OMP_NUM_THREADS", "0")) or None
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps({"key": key, "result": result}, indent=1))
@@ -148,10 +169,10 @@ def run_scene(
 def run_all(scenes: dict[str, Path], args: argparse.Namespace, code: str) -> dict[str, dict]:
     """{scene: {label: result}}: on Ray with ``--jobs`` > 1 (one CPU and one thread per task), else here."""
     jobs = [
-        (name, str(folder), str(args.workroot), args.profiles, args.seed, code)
+        (name, str(folder), str(args.workroot), args.profiles, args.seed, code, args.kept_only, args.device)
         for name, folder in scenes.items()
     ]
-    if args.jobs <= 1:
+    if args.jobs <= 1 or args.kept_only:
         return {job[0]: run_scene(*job) for job in jobs}
     from go_pipeline.reporting.batch import import_ray
 
@@ -242,6 +263,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument(
         "--code", default=None, help="read and write the records of this code version (default: HEAD)"
     )
+    ap.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="as go-pipeline run's")
     ap.add_argument("--kept-only", action="store_true", help="run nothing: tabulate the kept records")
     ap.add_argument("--out", type=Path, required=True, help="the JSON; the plot goes beside it (.png)")
     args = ap.parse_args(argv)

@@ -121,3 +121,18 @@ def test_paired_table_by_hand():
     assert row["lpips_star"]["mean"] == pytest.approx(0.5)
     assert row["cpu_ratio_median"] == pytest.approx(0.25)  # median of 0.2 and 0.3
     assert row["cpu_ratio_range"] == [0.2, 0.3]
+
+
+def test_kept_records_are_reused_only_under_the_same_key(tmp_path):
+    """A call resumes from the records of an earlier one; another code version's record is not reused."""
+    profiles = [validate.parse_profile("a=default"), validate.parse_profile("b=fast")]
+    key = {"spec": profiles[0].spec(), "code": "c1", "seed": 0}
+    path = validate.record_path(tmp_path, "s", "a")
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps({"key": key, "result": _ok(20.0, 9.0, 50.0)}))
+    out = validate.run_scene("s", "unused", str(tmp_path), profiles, 0, "c1", kept_only=True)
+    assert out["a"] == _ok(20.0, 9.0, 50.0)
+    assert out["b"]["status"] == "not run"  # no record for b: nothing ran
+    other = validate.run_scene("s", "unused", str(tmp_path), profiles, 0, "c2", kept_only=True)
+    assert other["a"]["status"] == "not run"
+    assert validate.paired_table({"s": out}, ["a", "b"])["paired_scenes"] == []
