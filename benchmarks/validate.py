@@ -33,6 +33,7 @@ import numpy as np
 BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH))
 METRICS = ("psnr", "ssim", "lpips_star")
+CPU_COLUMNS = ("cpu_s", "cpu_s_reconstruct")
 BOOTSTRAP_SAMPLES = 10_000
 
 
@@ -186,6 +187,16 @@ def run_all(scenes: dict[str, Path], args: argparse.Namespace, code: str) -> dic
         ray.shutdown()
 
 
+def _columns(results: dict[str, dict], scenes: list[str], label: str) -> dict[str, np.ndarray]:
+    """One profile's metrics and CPU seconds over ``scenes``: ``cpu_s`` (every step) and
+    ``cpu_s_reconstruct`` (every step but eval, which only measures)."""
+    rows = [results[s][label] for s in scenes]
+    cols = {k: np.array([r[k] for r in rows], dtype=np.float64) for k in (*METRICS, "cpu_s")}
+    evals = [((r.get("steps") or {}).get("eval") or {}).get("cpu_s") or 0.0 for r in rows]
+    cols["cpu_s_reconstruct"] = cols["cpu_s"] - np.array(evals, dtype=np.float64)
+    return cols
+
+
 def paired_table(results: dict[str, dict], labels: list[str]) -> dict[str, Any]:
     """Means over the scenes every profile finished, and each profile against the first (paired)."""
     paired = [
@@ -193,20 +204,19 @@ def paired_table(results: dict[str, dict], labels: list[str]) -> dict[str, Any]:
     ]
     if not paired:
         return {"paired_scenes": [], "means": {}, "against_first": {}}
-    table = {
-        label: {k: np.array([results[s][label][k] for s in paired]) for k in (*METRICS, "cpu_s")}
-        for label in labels
-    }
+    table = {label: _columns(results, paired, label) for label in labels}
     means = {label: {k: round(float(v.mean()), 4) for k, v in cols.items()} for label, cols in table.items()}
     for label in labels:
-        means[label]["cpu_s_median"] = round(float(np.median(table[label]["cpu_s"])), 1)
+        for k in CPU_COLUMNS:
+            means[label][f"{k}_median"] = round(float(np.median(table[label][k])), 1)
     base = labels[0]
     against = {}
     for label in labels[1:]:
         row = {k: paired_bootstrap(table[label][k] - table[base][k]) for k in METRICS}
-        ratio = table[label]["cpu_s"] / table[base]["cpu_s"]
-        row["cpu_ratio_median"] = round(float(np.median(ratio)), 4)
-        row["cpu_ratio_range"] = [round(float(ratio.min()), 4), round(float(ratio.max()), 4)]
+        for k in CPU_COLUMNS:
+            ratio = table[label][k] / table[base][k]
+            row[f"{k}_ratio_median"] = round(float(np.median(ratio)), 4)
+            row[f"{k}_ratio_range"] = [round(float(ratio.min()), 4), round(float(ratio.max()), 4)]
         against[label] = row
     return {"paired_scenes": paired, "means": means, "against_first": against}
 

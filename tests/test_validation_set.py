@@ -103,13 +103,14 @@ def test_paired_bootstrap_against_the_normal_interval():
         validate.paired_bootstrap(np.array([]))
 
 
-def _ok(psnr: float, lpips: float, cpu: float) -> dict:
-    return {"status": "ok", "psnr": psnr, "ssim": 0.9, "lpips_star": lpips, "cpu_s": cpu}
+def _ok(psnr: float, lpips: float, cpu: float, eval_cpu: float = 0.0) -> dict:
+    steps = {"coarse": {"cpu_s": cpu - eval_cpu}, "eval": {"cpu_s": eval_cpu}}
+    return {"status": "ok", "psnr": psnr, "ssim": 0.9, "lpips_star": lpips, "cpu_s": cpu, "steps": steps}
 
 
 def test_paired_table_by_hand():
     results = {
-        "a": {"base": _ok(20.0, 10.0, 100.0), "fast": _ok(19.0, 11.0, 20.0)},
+        "a": {"base": _ok(20.0, 10.0, 100.0, eval_cpu=50.0), "fast": _ok(19.0, 11.0, 20.0, eval_cpu=10.0)},
         "b": {"base": _ok(30.0, 5.0, 200.0), "fast": _ok(30.5, 5.0, 60.0)},
         "c": {"base": _ok(25.0, 8.0, 300.0), "fast": {"status": "failed", "error": "x"}},
     }
@@ -119,8 +120,11 @@ def test_paired_table_by_hand():
     row = table["against_first"]["fast"]
     assert row["psnr"]["mean"] == pytest.approx(-0.25) and row["psnr"]["n"] == 2
     assert row["lpips_star"]["mean"] == pytest.approx(0.5)
-    assert row["cpu_ratio_median"] == pytest.approx(0.25)  # median of 0.2 and 0.3
-    assert row["cpu_ratio_range"] == [0.2, 0.3]
+    assert row["cpu_s_ratio_median"] == pytest.approx(0.25)  # median of 0.2 and 0.3
+    assert row["cpu_s_ratio_range"] == [0.2, 0.3]
+    # without eval (a measurement): a 10/50 = 0.2, b 60/200 = 0.3 (no eval step time recorded there)
+    assert table["means"]["base"]["cpu_s_reconstruct"] == pytest.approx(125.0)
+    assert row["cpu_s_reconstruct_ratio_range"] == [0.2, 0.3]
 
 
 def test_kept_records_are_reused_only_under_the_same_key(tmp_path):
