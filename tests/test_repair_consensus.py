@@ -66,6 +66,10 @@ class _Identity:
     channels = 3
     device = "cpu"
 
+    @staticmethod
+    def square_side(settings):
+        return settings.compact_resolution
+
     def restore(self, square, rng, gen, settings):
         return square, 1000, 1.0
 
@@ -81,7 +85,7 @@ def _blob(z: float) -> Gaussians:
 def test_cache_restores_what_both_models_render(other_z, white):
     train = ring_cameras([0, 90, 180, 270])
     arcs = RepairArcs.from_cameras(train, keep=0.8)
-    settings = RepairSettings(views_per_arc=1, resolution=64)
+    settings = RepairSettings(views_per_arc=1, compact_resolution=64)
     model = _blob(0.0)
     alone = RepairCache(arcs, _Identity(), settings, 0, None, 0).make(0, model)
     agreed = RepairCache(arcs, _Identity(), settings, 0, None, 0, consensus=[_blob(other_z)]).make(0, model)
@@ -103,9 +107,9 @@ def test_agreed_alpha_is_the_mask_target_only_with_a_weight():
     train = ring_cameras([0, 90, 180, 270])
     arcs = RepairArcs.from_cameras(train, keep=0.8)
     model, half, far = _blob(0.0), _blob(0.15), _blob(40.0)
-    weighted = RepairSettings(views_per_arc=1, resolution=64, agreed_alpha_weight=1.0)
-    plain = RepairSettings(views_per_arc=1, resolution=64)
-    restorer_only = RepairSettings(views_per_arc=1, resolution=64, alpha_weight=1.0)
+    weighted = RepairSettings(views_per_arc=1, compact_resolution=64, agreed_alpha_weight=1.0)
+    plain = RepairSettings(views_per_arc=1, compact_resolution=64)
+    restorer_only = RepairSettings(views_per_arc=1, compact_resolution=64, alpha_weight=1.0)
     views = RepairCache(arcs, _Identity(), weighted, 0, None, 0, consensus=[half]).make(0, model)
     for v in views:
         own = render_rgb_alpha_depth(model, v.camera, weighted.backend, 0)[1]
@@ -127,6 +131,8 @@ def test_the_mask_target_weight_follows_what_the_restorer_gives():
     """``alpha_weight`` weighs a restorer's repaired alpha, ``agreed_alpha_weight`` the models' agreed alpha
     (a restorer without alpha): one never stands in for the other."""
     arcs = RepairArcs.from_cameras(ring_cameras([0, 90, 180, 270]), keep=0.8)
-    settings = RepairSettings(views_per_arc=1, resolution=64, alpha_weight=0.7, agreed_alpha_weight=0.2)
+    settings = RepairSettings(
+        views_per_arc=1, compact_resolution=64, alpha_weight=0.7, agreed_alpha_weight=0.2
+    )
     assert RepairCache(arcs, _WithAlpha(), settings, 0, None, 0).alpha_target_weight == 0.7
     assert RepairCache(arcs, _Identity(), settings, 0, None, 0).alpha_target_weight == 0.2

@@ -182,7 +182,9 @@ class RepairCache:
             reference = None
             if self.references is not None:  # the nearest training view warped through the render's depth
                 reference = tuple(torch.from_numpy(a) for a in self.references.warp(rv.camera, depth, alpha))
-            square = framed_input(frame, s.resolution, rgb, alpha if with_alpha else None, reference)
+            square = framed_input(
+                frame, self.diffusion.square_side(s), rgb, alpha if with_alpha else None, reference
+            )
             if with_alpha:
                 base = torch.cat([base, alpha[None, None]], 1)
             images, label, w = self.diffusion.restore(square.to(self.diffusion.device), rng, gen, s)
@@ -285,7 +287,8 @@ class _RepairLoss:
         pick = numpy_rng(self.seed, "repair_pick", step).integers(len(self.cache.views))
         cv = self.cache.views[int(pick)]
         rgb, alpha = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
-        img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, s.lpips)
+        lpips_weight = self.diffusion.lpips_weight(s)
+        img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, lpips_weight)
         weight = self.cache.alpha_target_weight
         if cv.alpha is not None and weight > 0:  # the repaired or agreed alpha as a mask target
             img = img + weight * (alpha - cv.alpha).abs().mean()
@@ -315,8 +318,8 @@ class _RepairLoss:
         rv = views[int(rng.integers(len(views)))]
         rgb, alpha = render_differentiable(g, rv.camera, 1.0, s.backend, self.sh)
         frame = Frame.choose(rv.camera.height, rv.camera.width, alpha.detach())
-        square = frame.to_square(hwc_to_bchw(rgb), s.resolution).to(self.diffusion.device)
-        loss_sds, t = self.diffusion.sds_loss(square, float(rng.uniform(*s.t_range)), gen)
+        square = frame.to_square(hwc_to_bchw(rgb), s.sd15_resolution).to(self.diffusion.device)
+        loss_sds, t = self.diffusion.sds_loss(square, float(rng.uniform(*s.sd15_t_range)), gen)
         lam = distance_weight(rv.camera.center, self.cache.refs, self.cache.d_max)
         if step % 100 == 0:
             self.log.append(
