@@ -82,13 +82,6 @@ class RepairSettings:
         "docs/repair_prior.md): its mask target at each repaired view (docs/repair.md, 'The prior's alpha "
         "where the prior repairs')",
     )
-    agreed_alpha_weight: float = setting(
-        0.0,
-        ge=0,
-        doc="with a restorer that gives no alpha, under the consensus: L1 of the render's alpha to the "
-        "models' agreed alpha (-0.5 dB on both real/ captures: docs/repair.md, 'The prior's alpha where the "
-        "prior repairs')",
-    )
     means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
     densify_until: int = setting(3600, ge=0)
