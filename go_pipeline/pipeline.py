@@ -35,6 +35,15 @@ RESERVED_OUTPUTS = {"manifest.json"}
 RENAMED_STEPS = {
     "lora": ("tune", "it tunes the repair model: LoRA for sd15, a full fine-tune for the compact model"),
 }
+# params renamed since earlier versions: {step: {old name: new name}}; an old name in --set, a profile,
+# pipeline.yaml or a work dir's remembered params is one error naming the new one. The SD1.5 repair
+# model's own settings carry ``sd15_`` (the compact model's ``compact_``): no plain name acts on one path.
+_SD15_ONLY = {
+    "tune": ("prompt", "rank", "alpha", "unet", "controlnet", "text_encoder", "steps", "lr", "weight_decay",
+             "resolution", "precision"),
+    "repair": ("t_range", "num_inference_steps", "eta", "resolution", "lpips", "guidance_scale", "precision"),
+}  # fmt: skip
+RENAMED_PARAMS = {step: {name: f"sd15_{name}" for name in names} for step, names in _SD15_ONLY.items()}
 
 
 @dataclass(frozen=True)
@@ -147,9 +156,49 @@ class Pipeline:
                 f"{what}: {step}.{param} is step {up!r}'s params, given to {step!r}: set {up}.NAME instead"
             )
         if param not in spec.params:
+            renamed_param(spec, step, param, what)
             known = ", ".join(spec.params) or "none"
             raise PipelineError(f"{what}: step {step!r} has no param {param!r} (params: {known})")
         return step, param
+
+
+def ignored_overrides(
+    pipeline: Pipeline, params: dict[str, dict[str, Any]], overrides: dict[str, Any]
+) -> list[str]:
+    """One warning line per ``--set`` value (``overrides``, flat) that the run's repair model ignores: a
+    tune / repair ``sd15_*`` param when the weights step will run the compact model, or ``compact_*`` with
+    sd15 (steps/registry.py ``only_model``). ``params``: the resolved params; the weights params alone decide
+    the model (WeightsParams.chosen_model), so this is known at plan time. Profile values are not warned
+    about: a profile is written for either model (``example`` and ``test`` set both models' values)."""
+    from go_pipeline.steps.registry import WEIGHTS_STEP, only_model
+
+    weights = next((n for n, spec in pipeline.steps.items() if spec.module == WEIGHTS_STEP), None)
+    if weights is None:
+        return []
+    model, why = step_params(WEIGHTS_STEP, params[weights]).chosen_model()
+    label = {"sd15": "SD1.5", "compact": "compact"}
+    lines = []
+    for dotted, value in overrides.items():
+        step, _, param = dotted.partition(".")
+        spec = pipeline.steps.get(step)
+        needs = None if spec is None else only_model(spec.module, param)
+        if needs is not None and needs != model:
+            lines.append(
+                f"warning: --set {dotted}={_show(value)} is ignored: it acts only on the {label[needs]} "
+                f"repair model, and this run repairs with the {label[model]} model ({why})"
+            )
+    return lines
+
+
+def renamed_param(spec: StepSpec, step: str, param: str, what: str, path: Path | None = None) -> None:
+    """One PipelineError naming the new name when ``param`` is an old name of one of ``spec``'s params
+    (RENAMED_PARAMS); nothing otherwise."""
+    new = RENAMED_PARAMS.get(step, {}).get(param)
+    if new is None or new not in spec.params:
+        return
+    why = " (it acts only on the SD1.5 repair model)" if new.startswith("sd15_") else ""
+    old, now = f"{step}.{param}", f"{step}.{new}"
+    raise PipelineError(f"{what}: {old} is now called {now}{why}: write {now} instead of {old}", path)
 
 
 _ENV_REF = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
@@ -459,6 +508,9 @@ def _typed_defaults(step: str, cls: type, values: dict[str, Any], path: Path) ->
     defaults = {k: v for k, v in to_mapping(cls()).items() if k in fields_of(cls) and k not in upstream}
     for key, value in values.items():
         if key not in defaults:
+            new = RENAMED_PARAMS.get(step, {}).get(key)
+            if new in defaults:
+                raise PipelineError(f"step {step!r}: param {key!r} is now called {new!r}: write {new}", path)
             known = ", ".join(defaults) or "none"
             raise PipelineError(
                 f"step {step!r}: {key!r} is not a setting of {cls.__name__} (settings: {known})", path
@@ -551,6 +603,7 @@ def _parse_profiles(raw: Any, pipeline: Pipeline) -> dict[str, dict[str, dict[st
             spec = pipeline.require_step(step, f"profile {pname!r}")
             for param, value in values.items():
                 if param not in spec.params:
+                    renamed_param(spec, step, param, f"profile {pname!r}", path)
                     known = ", ".join(spec.params) or "none"
                     raise PipelineError(
                         f"profile {pname!r}: step {step!r} has no param {param!r} (params: {known})", path

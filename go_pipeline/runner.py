@@ -27,6 +27,7 @@ from go_pipeline.pipeline import (
     Pipeline,
     StepRules,
     StepSpec,
+    ignored_overrides,
     load_pipeline,
     require_installed_steps,
     step_rules,
@@ -420,6 +421,8 @@ def _run_locked(plan: _Plan, selection: _Selection, options: RunOptions, lock_fd
             f"seed={plan.seed} until={selection.until} force={sorted(selection.force)} "
             f"pipeline={plan.pipeline.path} python={sys.executable}"
         )
+        for line in ignored_overrides(plan.pipeline, plan.params, plan.overrides):
+            display.log.warning(line)
         store.check_scene_binding(plan.workdir, plan.scene_dir, bind=True)
         store.sweep_leftovers(plan.workdir)
         if options.on_start is not None:

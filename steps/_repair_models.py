@@ -171,7 +171,7 @@ class CompactModel:
             raise GoError(
                 f"repair.compact_resolution must be a multiple of {engine.restorer.scale}, got {res}"
             )
-        return engine, note, replace(params, resolution=res, lpips=params.compact_lpips)
+        return engine, note, params
 
     @staticmethod
     def _engine(inputs: dict[str, Path], tune_info: dict, use_lora: bool, device: str):
@@ -325,7 +325,7 @@ class SD15Model:
 
         paths = weight_paths(inputs)
         weights = paths.describe()
-        prompt = params.prompt
+        prompt = params.sd15_prompt
         if not params.finetune:
             art.write_json(
                 ctx.out_dir,
@@ -341,14 +341,14 @@ class SD15Model:
             return
 
         device = str(ctx.device)
-        weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
+        weight_dtype, autocast_dtype = precision_dtypes(device, params.sd15_precision)
         models = load_repair_models(paths, device=device, dtype=weight_dtype)  # unreadable files raise
         spec = LoraSpec(
-            rank=params.rank,
-            alpha=params.alpha,
-            unet=params.unet,
-            controlnet=params.controlnet,
-            text_encoder=params.text_encoder,
+            rank=params.sd15_rank,
+            alpha=params.sd15_alpha,
+            unet=params.sd15_unet,
+            controlnet=params.sd15_controlnet,
+            text_encoder=params.sd15_text_encoder,
         )
         counts = add_lora(models, spec, seed=int(ctx.seed))
         diffusion = RepairDiffusion(models, prompt=prompt, device=device, autocast_dtype=autocast_dtype)
@@ -356,11 +356,11 @@ class SD15Model:
         _, views = training_views(inputs["scene"], inputs.get("mask"), inputs["coarse"])
         source = _pair_source(inputs, params, views)
         settings = TuneSettings(
-            steps=params.steps,
-            lr=params.lr,
+            steps=params.sd15_steps,
+            lr=params.sd15_lr,
             betas=params.betas,
-            weight_decay=params.weight_decay,
-            resolution=params.resolution,
+            weight_decay=params.sd15_weight_decay,
+            resolution=params.sd15_resolution,
             checkpoint_every=params.checkpoint_every,
         )
         bar = ResumedProgress(ctx, settings.steps, "LoRA tuning")
@@ -409,7 +409,7 @@ class SD15Model:
         from go_core.diffusion.sampler import RepairDiffusion
 
         paths = WeightPaths(**tune_info["weights"])
-        weight_dtype, autocast_dtype = precision_dtypes(device, params.precision)
+        weight_dtype, autocast_dtype = precision_dtypes(device, params.sd15_precision)
         models = load_repair_models(paths, device=device, dtype=weight_dtype)  # moved/broken weights raise
         use_lora = params.use_lora and tune_info.get("status") == "ok"
         if use_lora:
@@ -423,7 +423,7 @@ class SD15Model:
             prompt=str(tune_info.get("prompt", "a photo of xxy5syt00")),
             device=device,
             autocast_dtype=autocast_dtype,
-            guidance_scale=params.guidance_scale,
+            guidance_scale=params.sd15_guidance_scale,
         )
         return diffusion, "fine-tuned" if use_lora else "pretrained (no fine-tuning)", params
 

@@ -154,6 +154,18 @@ class WeightsParams:
     clip_path: str = setting("${GO_CLIP_PATH:-}", doc="optional CLIP ViT-L/14 text encoder")
     single_file_config: str = setting("${GO_SD15_CONFIG:-}", doc="diffusers config folder for single files")
 
+    def chosen_model(self) -> tuple[Literal["sd15", "compact"], str]:
+        """(the repair model the weights step runs, why): compact when named, or auto without an SD1.5 or
+        ControlNet path; else sd15 (auto with a path given runs sd15, or stops on incomplete weights). The
+        params alone decide it, so the runner knows it at plan time (steps/weights.py runs by it)."""
+        if self.repair_model == "compact":
+            return "compact", "weights.repair_model compact"
+        if self.repair_model == "sd15":
+            return "sd15", "weights.repair_model sd15"
+        if self.sd15_path or self.controlnet_path:
+            return "sd15", "weights.repair_model auto, SD1.5 weights configured"
+        return "compact", "weights.repair_model auto, no SD1.5 weights configured"
+
 
 @dataclass
 class LooParams(LooSettings):
@@ -182,20 +194,22 @@ class TuneParams:
     finetune: bool = setting(
         True, doc="false: no fine-tuning, the pretrained repair model (loo and noise_pairs are skipped)"
     )
-    prompt: str = "a photo of xxy5syt00"
-    rank: int = setting(64, ge=1, doc="LoRA rank on UNet + ControlNet transformer blocks and CLIP attention")
-    alpha: float = setting(64.0, gt=0)
-    unet: bool = True
-    controlnet: bool = True
-    text_encoder: bool = True
-    steps: int = setting(1800, ge=0)
-    lr: float = setting(0.001, gt=0, doc="AdamW")
-    betas: tuple[float, float] = setting((0.9, 0.999), ge=0, lt=1)
-    weight_decay: float = setting(0.01, ge=0)
-    resolution: int = setting(512, ge=64, multiple_of=64, doc="square side fed to SD")
+    sd15_prompt: str = setting("a photo of xxy5syt00", doc="SD1.5: the prompt the LoRA is tuned with")
+    sd15_rank: int = setting(
+        64, ge=1, doc="SD1.5: LoRA rank on UNet + ControlNet transformer blocks and CLIP attention"
+    )
+    sd15_alpha: float = setting(64.0, gt=0, doc="SD1.5: LoRA alpha")
+    sd15_unet: bool = setting(True, doc="SD1.5: LoRA on the UNet")
+    sd15_controlnet: bool = setting(True, doc="SD1.5: LoRA on the ControlNet")
+    sd15_text_encoder: bool = setting(True, doc="SD1.5: LoRA on the CLIP text encoder")
+    sd15_steps: int = setting(1800, ge=0, doc="SD1.5: LoRA tuning steps")
+    sd15_lr: float = setting(0.001, gt=0, doc="SD1.5: AdamW learning rate")
+    betas: tuple[float, float] = setting((0.9, 0.999), ge=0, lt=1, doc="Adam(W) betas (both models)")
+    sd15_weight_decay: float = setting(0.01, ge=0, doc="SD1.5: AdamW weight decay")
+    sd15_resolution: int = setting(512, ge=64, multiple_of=64, doc="SD1.5: square side fed to SD")
     checkpoint_every: int = setting(300, ge=0)
     use_loo_pairs: bool = setting(True, doc="false: noise pairs only")
-    precision: Precision = setting("auto", doc="CUDA: auto/bf16 | fp16 | fp32; CPU is always fp32")
+    sd15_precision: Precision = setting("auto", doc="SD1.5 on CUDA: auto/bf16 | fp16 | fp32; CPU: fp32")
     compact_steps: int = setting(400, ge=0, doc="compact repair model: full fine-tune steps (L1, Adam)")
     compact_lr: float = setting(0.0001, gt=0, doc="compact: Adam learning rate")
     compact_method: Literal["full", "lora"] = setting("full", doc="compact: full fine-tune or LoRA (peft)")
@@ -223,14 +237,10 @@ class RepairParams(RepairSettings):
     """Gaussian repair (go_core.repair.settings.RepairSettings), its ablations and the coarse settings."""
 
     mode: Literal["full", "no_repair"] = setting("full", doc="no_repair: the coarse model is the result")
-    use_lora: bool = setting(True, doc="false: no fine-tuning ablation with the pretrained ControlNet")
-    guidance_scale: float = setting(1.0, ge=0)
+    use_lora: bool = setting(True, doc="false: the pretrained repair model, not the tune step's (ablation)")
+    sd15_guidance_scale: float = setting(1.0, ge=0, doc="SD1.5: classifier-free guidance (> 1: on)")
     lpips_net: Literal["vgg", "alex"] = "vgg"
-    precision: Precision = "auto"
-    compact_resolution: int = setting(256, ge=1, doc="compact model: side of the repaired views")
-    compact_lpips: float = setting(
-        0.0, ge=0, doc="compact model: LPIPS term weight (0: no gain measured, half the step's CPU)"
-    )
+    sd15_precision: Precision = setting("auto", doc="SD1.5 on CUDA: auto/bf16 | fp16 | fp32; CPU: fp32")
     consensus: bool = setting(
         True,
         doc="a second model (coarse + repair at a derived seed); each novel view's repair input is what both "

@@ -99,6 +99,21 @@ STEPS: dict[str, StepDeclaration] = {
 }
 
 
+# the steps whose ``sd15_*`` / ``compact_*`` params act only with that repair model (docs/repair.md); the
+# weights step chooses the model (WeightsParams.chosen_model)
+WEIGHTS_STEP = "go_pipeline.steps.weights"
+REPAIR_MODEL_STEPS = ("go_pipeline.steps.tune", "go_pipeline.steps.repair")
+MODEL_PREFIXES = {"sd15": "sd15_", "compact": "compact_"}
+
+
+def only_model(module: str, param: str) -> str | None:
+    """The repair model ("sd15" | "compact") that alone reads ``param`` of the step ``module``; None when
+    the param acts with both (or the step is not one of REPAIR_MODEL_STEPS)."""
+    if module not in REPAIR_MODEL_STEPS:
+        return None
+    return next((m for m, prefix in MODEL_PREFIXES.items() if param.startswith(prefix)), None)
+
+
 def declaration(module: str) -> StepDeclaration | None:
     """The declaration of a packaged step module, or None for a step of your own."""
     return STEPS.get(module)

@@ -162,7 +162,7 @@ def run(ctx, inputs: dict[str, Path], params: RepairParams) -> None:
     second_restorer = _consensus_restorer(second_name, params, repair_model, device)
     # RepairSettings with the coarse step's settings (params.coarse), as the model needs them
     diffusion, lora_note, settings = repair_model_named(repair_model).load(inputs, tune_info, params, device)
-    lpips, lpips_note = _lpips(params.lpips_net, settings.lpips)
+    lpips, lpips_note = _lpips(params.lpips_net, diffusion.lpips_weight(settings))
     # the scene read once: the coarse stage's inputs, for this repair's views and the second model's fit
     scene_inputs = coarse_inputs(inputs["scene"], inputs["mask"], inputs["hull"], inputs.get("depth"))
     views = repair_views(scene_inputs.views, inputs["coarse"])

@@ -68,7 +68,7 @@ def run(ctx, inputs: dict[str, Path], params: WeightsParams) -> None:
     problems = missing_weights(paths)
     if choice != "compact" and problems and (paths.sd15 or paths.controlnet):
         raise MissingWeightsError("repair model weights: " + " | ".join(problems))
-    if choice == "compact" or (choice == "auto" and problems):
+    if params.chosen_model()[0] == "compact":  # auto: compact when no SD1.5 / ControlNet path is given
         compact = compact_model_info(params.compact_model)
         why = "chosen" if choice == "compact" else "auto: no SD1.5 + ControlNet weights configured"
         info = {"status": "ok", "reason": "", "repair_model": "compact", "compact": compact,

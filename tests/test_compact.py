@@ -29,7 +29,6 @@ REPAIR = {
     "views_per_arc": 2,
     "compact_resolution": 64,
     "checkpoint_every": 5,
-    "lpips": 0.0,
     "consensus": False,  # the second model's phases are tested in test_repair_steps.py
 }
 COMPACT = {"repair_model": "compact"}

@@ -52,7 +52,6 @@ def _places(name: str, value) -> list[str]:
 RESTATED = {
     "views": {"go_core/scene/loader.py", "go_core/scene/validate.py"},  # 0: the scene's own split
     "poses": {"go_core/scene/artifact.py"},  # Ingest(): a record of how the scene step ingested
-    "guidance_scale": {"go_core/diffusion/sampler.py"},  # the tune step builds RepairDiffusion without one
     "backend": {"go_core/poses/refine.py", "go_core/render/api.py"},  # "auto": the renderer's own choice
 }
 
@@ -60,7 +59,6 @@ RESTATED = {
 UNRELATED = {
     "init": {"go_core/config.py"},
     "sh_degree": {"go_core/render/synthetic.py"},
-    "resolution": {"pipeline.yaml"},  # the example profile's mesh.resolution 128, another step's setting
 }
 
 

@@ -67,13 +67,13 @@ def test_steps_have_no_fallback_defaults_or_rename_tables():
         ({"coarse.lambda_mask": float("nan")}, "--set coarse.lambda_mask=nan: must be a finite number"),
         ({"coarse.floater_schedule": "cosine"}, "--set coarse.floater_schedule='cosine': must be one of 'code' | 'paper', got 'cosine'"),  # noqa: E501
         ({"hull.init": "cube"}, "--set hull.init='cube': must be one of 'hull' | 'random', got 'cube'"),
-        ({"tune.resolution": 100}, "--set tune.resolution=100: must be a multiple of 64, got 100"),
+        ({"tune.sd15_resolution": 100}, "--set tune.sd15_resolution=100: must be a multiple of 64, got 100"),
         ({"turntable.background": [1, 1]}, "--set turntable.background=[1, 1]: expected 3 values, got 2"),
         ({"turntable.background": [1, 1, 2]}, "--set turntable.background=[1, 1, 2]: must be <= 1, got 2.0"),
         ({"eval.lpips_nets": ["vgg", "squeeze"]}, "--set eval.lpips_nets=['vgg', 'squeeze']: must be one of 'vgg' | 'alex', got 'squeeze'"),  # noqa: E501
         ({"coarse.nope": 1}, "--set coarse.nope=1: step 'coarse' has no param 'nope' (params: "),
         ({"loo.coarse": {}}, "--set loo.coarse={}: loo.coarse is step 'coarse''s params, given to 'loo': set coarse.NAME instead"),  # noqa: E501
-        ({"repair.t_range": [0.9, 0.2]}, "step 'repair': t_range must be increasing, got [0.9, 0.2]"),
+        ({"repair.sd15_t_range": [0.9, 0.2]}, "step 'repair': sd15_t_range must be increasing, got [0.9, 0.2]"),  # noqa: E501
         ({"repair.opacity_reset_every": 500}, "step 'repair': opacity_reset_every=500 resets opacities to coarse.opacity_reset_value 0.01, below min_opacity 0.02"),  # noqa: E501
     ],
 )  # fmt: skip

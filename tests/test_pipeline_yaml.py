@@ -286,4 +286,4 @@ def test_a_renamed_step_gets_one_line_naming_the_new_name():
     assert str(info.value).endswith("write tune instead of lora")
     with pytest.raises(PipelineError, match=r"^--until: step 'lora' is now called 'tune'"):
         p.require_step("lora", "--until", from_file=False)
-    assert p.resolve_params(None, {"tune.steps": 3})["tune"]["steps"] == 3
+    assert p.resolve_params(None, {"tune.sd15_steps": 3})["tune"]["sd15_steps"] == 3

@@ -19,16 +19,16 @@ from tests._tiny_repair import (
 )
 
 LOO = {"phase1_iterations": 12, "phase2_iterations": 6, "renders": 2, "checkpoint_every": 0}
-LORA = {"rank": 4, "alpha": 4.0, "steps": 6, "resolution": 64, "checkpoint_every": 2}
+LORA = {"sd15_rank": 4, "sd15_alpha": 4.0, "sd15_steps": 6, "sd15_resolution": 64, "checkpoint_every": 2}
 REPAIR = {
     "iterations": 10,
     "repair_iterations": 8,
     "refresh_every": 4,
     "views_per_arc": 2,
-    "num_inference_steps": 10,
-    "resolution": 64,
+    "sd15_num_inference_steps": 10,
+    "sd15_resolution": 64,
     "checkpoint_every": 5,
-    "lpips": 0.0,
+    "sd15_lpips": 0.0,
     "coarse": {"iterations": 20, "checkpoint_every": 8},  # the consensus's second coarse fit
 }
 

@@ -19,6 +19,16 @@ class CompactRepair:
         """3: the restorer takes RGB on white; 4: a repair prior, RGB and alpha (the repair loop's input)."""
         return int(getattr(self.restorer, "channels", 3))
 
+    @staticmethod
+    def square_side(settings) -> int:
+        """The side of the square views the repair loop gives ``restore``: ``compact_resolution``."""
+        return int(settings.compact_resolution)
+
+    @staticmethod
+    def lpips_weight(settings) -> float:
+        """The repair loss's LPIPS weight with this model: ``compact_lpips``."""
+        return float(settings.compact_lpips)
+
     def restore(self, square: torch.Tensor, rng, generator, settings) -> tuple[torch.Tensor, int, float]:
         """One repaired view for the repair loop: (images, label, w) with a blend strength b drawn from
         ``settings.strength_range`` (its one-pass t: label = 1000 b) and the weight w = b."""

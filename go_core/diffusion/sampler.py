@@ -149,13 +149,23 @@ class RepairDiffusion:
         """⌊num_inference_steps · t/T⌋ DDIM steps, at least one."""
         return max(1, min(num_inference_steps, math.floor(num_inference_steps * t_frac)))
 
+    @staticmethod
+    def square_side(settings) -> int:
+        """The side of the square views the repair loop gives ``restore``: ``sd15_resolution``."""
+        return int(settings.sd15_resolution)
+
+    @staticmethod
+    def lpips_weight(settings) -> float:
+        """The repair loss's LPIPS weight with this model: ``sd15_lpips``."""
+        return float(settings.sd15_lpips)
+
     def restore(self, square: torch.Tensor, rng, generator, settings) -> tuple[torch.Tensor, int, float]:
         """One repaired view for the repair loop: (images, label, w): SDEdit at t/T drawn from
-        ``settings.t_range`` (label = the timestep) with DreamFusion's weight w(t)."""
+        ``settings.sd15_t_range`` (label = the timestep) with DreamFusion's weight w(t)."""
         from go_core.repair.weights import dreamfusion_weight
 
-        t_frac = float(rng.uniform(*settings.t_range))
-        res = self.repair(square, t_frac, generator, settings.num_inference_steps, settings.eta)
+        t_frac = float(rng.uniform(*settings.sd15_t_range))
+        res = self.repair(square, t_frac, generator, settings.sd15_num_inference_steps, settings.sd15_eta)
         return res.images, res.timestep, dreamfusion_weight(self.alphas_cumprod, res.timestep)
 
     @torch.no_grad()

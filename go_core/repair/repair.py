@@ -20,9 +20,7 @@ schedule are unchanged. A repair prior (go_core.compact.prior, ``channels`` 4 or
 alpha, and with 8 channels the nearest training view warped through the render's expected depth
 (go_core.compact.reference); its repaired alpha is kept with the view and ``alpha_weight`` · L1(alpha) joins
 the view's image loss (the mask target of issue 34). Given further models of the scene (``consensus``), each
-novel view's repair input is what all the models render (go_core.repair.consensus), not the render alone;
-with a restorer that gives no alpha, ``agreed_alpha_weight`` > 0 makes that agreed alpha the view's mask
-target, so what the models do not share becomes transparent rather than white.
+novel view's repair input is what all the models render (go_core.repair.consensus), not the render alone.
 """
 
 from __future__ import annotations
@@ -62,7 +60,7 @@ class CachedView:
     w: float
     lam: float
     arc: int
-    alpha: torch.Tensor | None = None  # mask target [H, W]: repaired alpha, or agreed_alpha_target's
+    alpha: torch.Tensor | None = None  # mask target [H, W]: the repaired alpha of a restorer that gives one
 
 
 def _cam_to_dict(c: Camera) -> dict:
@@ -182,7 +180,9 @@ class RepairCache:
             reference = None
             if self.references is not None:  # the nearest training view warped through the render's depth
                 reference = tuple(torch.from_numpy(a) for a in self.references.warp(rv.camera, depth, alpha))
-            square = framed_input(frame, s.resolution, rgb, alpha if with_alpha else None, reference)
+            square = framed_input(
+                frame, self.diffusion.square_side(s), rgb, alpha if with_alpha else None, reference
+            )
             if with_alpha:
                 base = torch.cat([base, alpha[None, None]], 1)
             images, label, w = self.diffusion.restore(square.to(self.diffusion.device), rng, gen, s)
@@ -196,15 +196,10 @@ class RepairCache:
                     w,
                     distance_weight(rv.camera.center, self.refs, self.d_max),
                     rv.arc,
-                    full[..., 3].contiguous() if with_alpha else self.agreed_alpha_target(alpha),
+                    full[..., 3].contiguous() if with_alpha else None,
                 )
             )
         return out
-
-    def agreed_alpha_target(self, alpha: torch.Tensor) -> torch.Tensor | None:
-        """The mask target of a view whose restorer gives no alpha: under the consensus, with
-        ``agreed_alpha_weight`` > 0, what all the models render (``alpha``, their agreed alpha); else none."""
-        return alpha.contiguous() if self.consensus and self.settings.agreed_alpha_weight > 0 else None
 
     @property
     def restorer_gives_alpha(self) -> bool:
@@ -214,8 +209,8 @@ class RepairCache:
     @property
     def alpha_target_weight(self) -> float:
         """The weight of its views' mask target: ``alpha_weight`` where the restorer gives alpha (a repair
-        prior), ``agreed_alpha_weight`` where the target is the models' agreed alpha."""
-        return self.settings.alpha_weight if self.restorer_gives_alpha else self.settings.agreed_alpha_weight
+        prior); 0 otherwise (those views have no mask target: docs/decisions/0041)."""
+        return self.settings.alpha_weight if self.restorer_gives_alpha else 0.0
 
 
 def _references(engine, views: list):
@@ -285,7 +280,8 @@ class _RepairLoss:
         pick = numpy_rng(self.seed, "repair_pick", step).integers(len(self.cache.views))
         cv = self.cache.views[int(pick)]
         rgb, alpha = render_differentiable(g, cv.camera, 1.0, s.backend, self.sh)
-        img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, s.lpips)
+        lpips_weight = self.diffusion.lpips_weight(s)
+        img = repair_image_loss(hwc_to_bchw(rgb), hwc_to_bchw(cv.image), self.lpips, s.l1, s.l2, lpips_weight)
         weight = self.cache.alpha_target_weight
         if cv.alpha is not None and weight > 0:  # the repaired or agreed alpha as a mask target
             img = img + weight * (alpha - cv.alpha).abs().mean()
@@ -315,8 +311,8 @@ class _RepairLoss:
         rv = views[int(rng.integers(len(views)))]
         rgb, alpha = render_differentiable(g, rv.camera, 1.0, s.backend, self.sh)
         frame = Frame.choose(rv.camera.height, rv.camera.width, alpha.detach())
-        square = frame.to_square(hwc_to_bchw(rgb), s.resolution).to(self.diffusion.device)
-        loss_sds, t = self.diffusion.sds_loss(square, float(rng.uniform(*s.t_range)), gen)
+        square = frame.to_square(hwc_to_bchw(rgb), s.sd15_resolution).to(self.diffusion.device)
+        loss_sds, t = self.diffusion.sds_loss(square, float(rng.uniform(*s.sd15_t_range)), gen)
         lam = distance_weight(rv.camera.center, self.cache.refs, self.cache.d_max)
         if step % 100 == 0:
             self.log.append(

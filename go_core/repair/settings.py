@@ -59,29 +59,28 @@ class RepairSettings:
         "(views from above, which real captures' test views have; docs/real_captures.md)",
     )
     keep: float = setting(0.8, gt=0, le=1, doc="middle fraction of each arc between reference views sampled")
-    t_range: tuple[float, float] = setting((0.1, 1.0), gt=0, le=1, doc="SDEdit strength t/T")
+    sd15_t_range: tuple[float, float] = setting((0.1, 1.0), gt=0, le=1, doc="SD1.5: SDEdit strength t/T")
     strength_range: tuple[float, float] = setting((0.5, 1.0), gt=0, le=1, doc="compact: blend b, w = b")
-    num_inference_steps: int = setting(50, ge=1)
-    eta: float = setting(1.0, ge=0, doc="DDIM stochasticity")
-    resolution: int = setting(512, ge=64, multiple_of=64)
+    sd15_num_inference_steps: int = setting(50, ge=1, doc="SD1.5: DDIM steps of a full denoise")
+    sd15_eta: float = setting(1.0, ge=0, doc="SD1.5: DDIM stochasticity")
+    sd15_resolution: int = setting(512, ge=64, multiple_of=64, doc="SD1.5: side of the repaired views")
+    compact_resolution: int = setting(256, ge=1, doc="compact model: side of the repaired views")
     lrep_start: float = setting(1.0, ge=0, doc="L_rep weight decays lrep_start -> lrep_end")
     lrep_end: float = setting(0.1, ge=0)
     l1: float = setting(1.0, ge=0)
     l2: float = setting(1.0, ge=0)
-    lpips: float = setting(1.0, ge=0, doc="LPIPS term (off, and said so, without LPIPS weights)")
+    sd15_lpips: float = setting(
+        1.0, ge=0, doc="SD1.5: LPIPS term weight (off, and said so, without LPIPS weights)"
+    )
+    compact_lpips: float = setting(
+        0.0, ge=0, doc="compact model: LPIPS term weight (0: no gain measured, half the step's CPU)"
+    )
     alpha_weight: float = setting(
         1.0,
         ge=0,
         doc="L1 of the render's alpha to the repaired alpha of a restorer that gives one (a repair prior, "
         "docs/repair_prior.md): its mask target at each repaired view (docs/repair.md, 'The prior's alpha "
         "where the prior repairs')",
-    )
-    agreed_alpha_weight: float = setting(
-        0.0,
-        ge=0,
-        doc="with a restorer that gives no alpha, under the consensus: L1 of the render's alpha to the "
-        "models' agreed alpha (-0.5 dB on both real/ captures: docs/repair.md, 'The prior's alpha where the "
-        "prior repairs')",
     )
     means_lr: float = setting(1.6e-6, gt=0, doc="constant position learning rate (authors' repair config)")
     densify_from: int = setting(400, ge=0, doc="appendix densification schedule")
@@ -109,7 +108,7 @@ class RepairSettings:
     def check(self) -> list[str]:
         problems = [
             f"{name} must be increasing, got {list(value)}"
-            for name, value in (("t_range", self.t_range), ("strength_range", self.strength_range))
+            for name, value in (("sd15_t_range", self.sd15_t_range), ("strength_range", self.strength_range))
             if value[0] > value[1]
         ]
         reset = self.coarse.opacity_reset_value
