@@ -52,7 +52,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
+from _lib.machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
 
 from go_pipeline.store import read_manifest
 
