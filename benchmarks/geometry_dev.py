@@ -30,14 +30,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from coarse_dev import (
+from _lib.coarse import (
     DEV,
     coarse_params,
     evaluate,
     hull_params,
     parse_overrides,
     step_params_from_yaml,
-    train_variant,
+    train_coarse,
 )
 
 from go_core.coarse.hull import hull_bounds
@@ -61,7 +61,7 @@ def train(scene_dir: Path, cache: Path, iterations: int | None, seed: int, extra
         return path
     scene = load_scene(scene_dir)
     base = coarse_params(None, iterations) if iterations else step_params_from_yaml("coarse", None)
-    g, stats, run = train_variant(
+    g, stats, run = train_coarse(
         scene, "hull", base["iterations"], seed, extra, base=base, hull=hull_params(None)
     )
     path.parent.mkdir(parents=True, exist_ok=True)

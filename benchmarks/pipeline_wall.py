@@ -19,7 +19,7 @@ import os
 import subprocess
 from pathlib import Path
 
-from _machine import code_version, cpu_name
+from _lib.machine import code_version, cpu_name
 
 from go_pipeline.commands.runs import load_runs
 from go_pipeline.store import read_manifest

@@ -40,6 +40,14 @@ JSON and one contact sheet per scene (rows: truth / coarse / the repaired models
 
     nice -n 10 python benchmarks/repair_dev.py --scenes milk basket --workroot /tmp/repair_dev \
         --out benchmarks/results/repair_dev.json --sheets docs/img
+
+``merge`` joins several of its JSONs (one per object, run side by side) into one results file: every object's
+record, every command, and a summary of the variants per object and over all of them (PSNR / SSIM / LPIPS*,
+the restorer the folds chose, the fold PSNRs); ``--previous`` names an earlier merged file whose per-object
+figures the summary sets beside today's (the same objects at another code):
+
+    python benchmarks/repair_dev.py merge --out benchmarks/results/repair_val_objects_1206.json \
+        --note "..." --previous benchmarks/results/repair_val_objects.json W/val_*.json
 """
 
 from __future__ import annotations
@@ -48,11 +56,12 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from _machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
+from _lib.machine import code_version, cpu_name  # benchmarks/ is on sys.path as a script
 
 from go_pipeline.store import read_manifest
 
@@ -213,8 +222,8 @@ def _against(base: str, scenes: dict) -> dict:
     return out
 
 
-def _parse_args() -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _parse_args(argv: list[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog="merge: see merge --help")
     ap.add_argument("--scenes", nargs="+", default=["milk", "alphabet_soup", "basket", "plate", "white_bowl"])
     ap.add_argument("--data", type=Path, default=DEV)
     ap.add_argument("--workroot", type=Path, required=True)
@@ -224,7 +233,7 @@ def _parse_args() -> argparse.Namespace:
     ap.add_argument("--sheets", type=Path, default=None, help="folder for <scene>_repair_sheet.jpg")
     ap.add_argument("--sheet-views", type=int, default=6)
     ap.add_argument("--seed", type=int, default=0, help="the runs' seed (one per --out file)")
-    return ap.parse_args()
+    return ap.parse_args(argv)
 
 
 def _new_result(args: argparse.Namespace, common: dict) -> dict:
@@ -313,8 +322,85 @@ def _summarise(result: dict) -> None:
     result["against_no_prior"] = _against("no_prior", result["scenes"])
 
 
-def main() -> None:
-    args = _parse_args()
+# ``merge``: per-object JSONs of this script, run side by side, joined into one results file
+METRICS = ("psnr", "ssim", "lpips_star")
+
+
+def object_name(scene: str) -> str:
+    """The corpus object of a scene folder: ``pybullet_objects__blob_000`` → ``pybullet_objects/blob_000``."""
+    return scene.replace("__", "/", 1)
+
+
+def object_summary(record: dict) -> dict:
+    """One object's variants (metrics rounded to 4 places), the restorers its folds chose and their PSNRs."""
+    lora = record.get("lora") or {}
+    out = {
+        name: {k: round(float(v[k]), 4) for k in METRICS}
+        for name, v in record["variants"].items()
+        if all(v.get(k) is not None for k in METRICS)
+    }
+    out["restorer_chosen"] = lora.get("restorer_chosen", "")
+    out["second_model_restorer"] = lora.get("consensus_restorer") or "own"
+    out["fold_psnr"] = {k: lora[k] for k in ("tuned_psnr", "prior_psnr", "blend_psnr") if k in lora}
+    if "loo_pair_psnr" in record:
+        out["loo_pair_psnr"] = round(float(record["loo_pair_psnr"]), 4)
+    return out
+
+
+def means(per_object: dict, variants: list[str]) -> dict:
+    """Per variant present on every object: the mean of each metric."""
+    out = {}
+    for variant in variants:
+        rows = [o[variant] for o in per_object.values() if variant in o]
+        if len(rows) == len(per_object):
+            out[variant] = {k: round(sum(r[k] for r in rows) / len(rows), 4) for k in METRICS}
+    return out
+
+
+def merge(paths: list[Path], previous: Path | None) -> dict:
+    """The merged record of ``paths`` (an object twice is an error: which run would count?)."""
+    objects, commands, variants = {}, [], []
+    runs = [(path, json.loads(path.read_text())) for path in paths]
+    for path, data in runs:
+        commands += data.get("commands", [data.get("command", "")])
+        for scene, record in data["scenes"].items():
+            name = object_name(scene)
+            if name in objects:
+                raise SystemExit(f"repair_dev.py merge: {path}: {name} is already in another file")
+            objects[name] = record
+            variants += [v for v in record["variants"] if v not in variants]
+    per_object = {name: object_summary(r) for name, r in sorted(objects.items())}
+    summary = {"objects_compared": len(per_object), "means": means(per_object, variants)}
+    summary["per_object"] = per_object
+    if previous is not None:
+        old = json.loads(previous.read_text())["summary"]["per_object"]
+        summary["previous"] = {
+            "file": str(previous),
+            "per_object": {n: {v: old[n][v] for v in variants if v in old.get(n, {})} for n in per_object},
+        }
+    keep = ("cpu", "cpu_count", "machine", "threads", "torch", "seed", "overrides")
+    machine = {k: runs[0][1].get(k) for k in keep}
+    return machine | {"commands": commands, "objects": objects, "summary": summary}
+
+
+def merge_main(argv: list[str]) -> None:
+    """``repair_dev.py merge``: write the merged file and print each variant's means."""
+    ap = argparse.ArgumentParser(
+        prog="repair_dev.py merge", description="Merge per-object repair_dev.py JSONs into one results file."
+    )
+    ap.add_argument("inputs", nargs="+", type=Path, help="repair_dev.py JSONs")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--note", default="", help="what was run, where and how (kept in the file)")
+    ap.add_argument("--previous", type=Path, help="an earlier merged file of the same objects")
+    args = ap.parse_args(argv)
+    merged = {"note": args.note} | merge(args.inputs, args.previous)
+    args.out.write_text(json.dumps(merged, indent=1) + "\n")
+    for variant, m in merged["summary"]["means"].items():
+        print(f"{variant:10s} " + " / ".join(f"{m[k]:.2f}" for k in METRICS))
+
+
+def run(args: argparse.Namespace) -> None:
+    """Every variant on every scene, the JSON rewritten after each scene, then the summary."""
     from go_pipeline.pipeline import parse_set_argument
     from go_pipeline.runner import run_pipeline
 
@@ -349,6 +435,14 @@ def main() -> None:
     _summarise(result)
     result["load_average_end"] = os.getloadavg()
     args.out.write_text(json.dumps(result, indent=2, sort_keys=True) + "\n")
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["merge"]:
+        merge_main(argv[1:])
+    else:
+        run(_parse_args(argv))
 
 
 if __name__ == "__main__":

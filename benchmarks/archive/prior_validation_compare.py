@@ -1,6 +1,6 @@
 """Compare repair-prior validation runs with their records (issue 34: is a remade corpus the same corpus?).
 
-Each ``NAME:RUN_DIR:RECORDED`` pairs a ``benchmarks/train_repair_prior.py`` output folder (its
+Each ``NAME:RUN_DIR:RECORDED`` pairs a ``benchmarks/prior/train_repair_prior.py`` output folder (its
 ``train_log.json``) with the run ``RECORDED`` of ``benchmarks/results/repair_prior_train.json``. Per
 validation set (novel views, and the training views where both have them) the JSON holds the means over the
 objects both runs validated, recorded against here, the means over every object here, and the per-object

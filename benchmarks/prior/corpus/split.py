@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import math
 
-from go_core.corpus.exclusion import Shape, same_mesh
 from go_core.seeding import derive_seed
+
+from .exclusion import Shape, same_mesh
 
 
 def geometry_groups(shapes: list[Shape]) -> dict[str, str]:
     """name -> group (the first name, in the given order, of its group): copies of one mesh (recoloured or
-    rescaled: ``go_core.corpus.exclusion.same_mesh``) are one group."""
+    rescaled: ``corpus.exclusion.same_mesh``) are one group."""
     group: dict[str, str] = {}
     for i, s in enumerate(shapes):
         group.setdefault(s.name, s.name)

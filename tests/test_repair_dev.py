@@ -1,4 +1,5 @@
-"""benchmarks/merge_repair_dev.py: per-object repair_dev.py JSONs merged into one results file."""
+"""benchmarks/repair_dev.py: its summary, its variants, and ``merge``: per-object repair_dev.py JSONs merged
+into one results file."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import json
 import pytest
 from _benchmark_module import benchmark_module
 
-merge_module = benchmark_module("merge_repair_dev")
+dev = benchmark_module("repair_dev")
 
 
 def _run_file(path, scene: str, full: tuple, no_prior: tuple, chosen: str, second: str):
@@ -25,7 +26,7 @@ def _run_file(path, scene: str, full: tuple, no_prior: tuple, chosen: str, secon
 def test_means_and_per_object_figures(tmp_path):
     a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
     b = _run_file(tmp_path / "b.json", "pyb__ball", (24.0, 0.7, 14.0), (24.5, 0.6, 13.0), "realesr", "prior")
-    merged = merge_module.merge([a, b], None)
+    merged = dev.merge([a, b], None)
     summary = merged["summary"]
     assert summary["objects_compared"] == 2
     assert summary["means"]["full"] == {"psnr": 22.0, "ssim": 0.8, "lpips_star": 12.0}
@@ -42,7 +43,7 @@ def test_previous_figures_set_beside(tmp_path):
     a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
     old = tmp_path / "old.json"
     old.write_text(json.dumps({"summary": {"per_object": {"hope/box": {"full": {"psnr": 18.0}, "x": {}}}}}))
-    previous = merge_module.merge([a], old)["summary"]["previous"]
+    previous = dev.merge([a], old)["summary"]["previous"]
     assert previous["per_object"] == {"hope/box": {"full": {"psnr": 18.0}}}
 
 
@@ -50,13 +51,12 @@ def test_an_object_twice_is_an_error(tmp_path):
     a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
     b = _run_file(tmp_path / "b.json", "hope__box", (21.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
     with pytest.raises(SystemExit, match="hope/box is already in another file"):
-        merge_module.merge([a, b], None)
+        dev.merge([a, b], None)
 
 
 def test_repair_dev_sets_every_variant_against_the_comparators():
     """repair_dev.py's summary: the defaults against the coarse model, and each variant against no_prior
     (issue 34's comparator): per-scene differences, their mean, and whether LPIPS* is lower everywhere."""
-    dev = benchmark_module("repair_dev")
 
     def scene(full, no_prior, coarse):
         variants = {
@@ -90,7 +90,6 @@ def test_compressed_repair_schedule_scales_every_count_alike():
 
     from go_core.repair.settings import RepairSettings
 
-    dev = benchmark_module("repair_dev")
     half = dev.VARIANTS["repair_x050"]
     assert half == {
         "repair.iterations": 2000,
@@ -106,3 +105,13 @@ def test_compressed_repair_schedule_scales_every_count_alike():
     refreshes = [-(-s.repair_iterations // s.refresh_every) for s in (defaults, short)]
     assert refreshes[0] == refreshes[1] == 14
     assert dev.VARIANTS["repair_x075"]["repair.iterations"] == 3000
+
+
+def test_merge_subcommand_writes_the_merged_file(tmp_path, capsys):
+    """``repair_dev.py merge --out OUT --note N IN...``: the note kept, each variant's means printed."""
+    a = _run_file(tmp_path / "a.json", "hope__box", (20.0, 0.9, 10.0), (19.0, 0.8, 11.0), "prior", "")
+    out = tmp_path / "merged.json"
+    dev.main(["merge", "--out", str(out), "--note", "two files", str(a)])
+    merged = json.loads(out.read_text())
+    assert merged["note"] == "two files" and merged["summary"]["objects_compared"] == 1
+    assert capsys.readouterr().out.splitlines()[0].split() == ["full", "20.00", "/", "0.90", "/", "10.00"]

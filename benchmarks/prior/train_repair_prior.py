@@ -16,7 +16,7 @@ numpy and this repository on PYTHONPATH (no other package); LPIPS weights from `
 go-pipeline cache. Runs on a GPU with ``--device cuda``; the weights written are the same kind of file
 either way. Example (1 CPU thread)::
 
-    python benchmarks/train_repair_prior.py --corpus ~/go-corpus --out prior_run \\
+    python benchmarks/prior/train_repair_prior.py --corpus ~/go-corpus --out prior_run \\
         --steps 2000 --batch 4 --crop 128
 
 Writes ``<out>/prior.safetensors`` (weights + config + training facts in the metadata) and
@@ -118,7 +118,7 @@ def load_split(
             if views == "train" and "train_coarse_depth" not in d.files:
                 sys.exit(
                     f"error: {info_path.parent / 'pairs.npz'}: no train_coarse_depth (made before it was "
-                    "stored): run benchmarks/repair_corpus.py --out CORPUS --add-train-depth"
+                    "stored): run benchmarks/prior/repair_corpus.py --out CORPUS --add-train-depth"
                 )
             pairs = _object_pairs(d, reference, views)
         for k in KEYS:
@@ -361,7 +361,7 @@ def train(args) -> dict:
     if not _run_steps(args, model, lpips, opt, rng, data, state, train_views):
         return {"stopped_at": state["step"], "cpu_s_total": round(state["cpu_s"], 1)}
     result = {
-        "command": "python benchmarks/train_repair_prior.py " + " ".join(sys.argv[1:]),
+        "command": "python benchmarks/prior/train_repair_prior.py " + " ".join(sys.argv[1:]),
         "settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
         "loss_log": state["log"],
         "train_pairs": len(data["names"]),

@@ -1,10 +1,10 @@
 """Render one object of the repair corpus with Blender (bpy) Cycles on the CPU: a NeRF-synthetic scene folder.
 
 Runs under a Python that has the ``bpy`` wheel (``pip install bpy==5.0.1 numpy`` in its own venv: bpy pins
-its own numpy), never under the project's interpreter; ``benchmarks/repair_corpus.py`` writes the job file
-and calls it::
+its own numpy), never under the project's interpreter; ``benchmarks/prior/repair_corpus.py`` writes the job
+file and calls it::
 
-    ~/.venvs/bpy/bin/python benchmarks/corpus_blender.py JOB.json
+    ~/.venvs/bpy/bin/python benchmarks/prior/corpus_blender.py JOB.json
 
 JOB.json: ``meshes`` (OBJ paths, joined into one object), ``up`` ("Y" or "Z": the files' up axis), ``out``
 (scene folder), ``res``, ``samples``, ``threads``, ``fov_deg``, ``radius``, ``views`` ({"train": [[az, el],
@@ -34,8 +34,11 @@ import bpy
 import numpy as np
 from mathutils import Matrix
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the repository: go_core
-from go_core.corpus.views import camera_to_world  # noqa: E402  (numpy only)
+HERE = os.path.dirname(os.path.abspath(__file__))  # benchmarks/prior: the corpus package
+sys.path.insert(0, os.path.dirname(os.path.dirname(HERE)))  # the repository: go_core
+sys.path.insert(0, HERE)
+from corpus.views import camera_to_world  # noqa: E402  (numpy only)
+
 from go_core.io.npz import write_npz_deterministic  # noqa: E402  (numpy only)
 
 

@@ -3,13 +3,13 @@ concave and flat-coloured shapes, which the LIBERO-PRO objects lack (white_bowl 
 repair prior loses to ``realesr``).
 
 Fetches the wheel once with ``pip download --no-deps`` into ``--cache`` (SHA-256 pinned) and writes an asset
-tree that ``benchmarks/repair_corpus.py --assets TREE --extend-index`` reads: the LIBERO-PRO families linked
-from the corpus cache, plus the family ``pybullet_objects`` with one folder per object (its OBJ, an MTL and
-its texture). Objects without a material get one: the named objects a white one (``WHITE``), the random blobs
-(``random_urdfs/NNN``) the flat colour their URDF gives them.
+tree that ``benchmarks/prior/repair_corpus.py --assets TREE --extend-index`` reads: the LIBERO-PRO families
+linked from the corpus cache, plus the family ``pybullet_objects`` with one folder per object (its OBJ, an MTL
+and its texture). Objects without a material get one: the named objects a white one (``WHITE``), the random
+blobs (``random_urdfs/NNN``) the flat colour their URDF gives them.
 
-    python benchmarks/corpus_pybullet.py --tree ~/go-corpus-assets
-    python benchmarks/repair_corpus.py --assets ~/go-corpus-assets --out ~/go-corpus --extend-index \\
+    python benchmarks/prior/corpus_pybullet.py --tree ~/go-corpus-assets
+    python benchmarks/prior/repair_corpus.py --assets ~/go-corpus-assets --out ~/go-corpus --extend-index \\
         --budget-min 30 --manifest benchmarks/results/repair_corpus.json
 """
 
@@ -99,9 +99,8 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "go-pipeline-corpus")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from corpus.assets import ASSETS_SUBDIR
     from repair_corpus import fetch_assets
-
-    from go_core.corpus.assets import ASSETS_SUBDIR
 
     libero = fetch_assets(args.cache) / ASSETS_SUBDIR
     assets = args.tree / ASSETS_SUBDIR

@@ -1,4 +1,5 @@
-"""What machine and code a benchmark ran on (shared by the scripts, which run as `python benchmarks/X.py`)."""
+"""What machine and code a benchmark ran on (shared by the scripts, which run as `python benchmarks/X.py`
+and import it as ``_lib.machine``)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ def cpu_name() -> str:
 
 def code_version() -> str:
     """The repository commit a result was made with (``+dirty`` when the work tree has changes)."""
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     try:
         head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True)
         dirty = subprocess.run(
