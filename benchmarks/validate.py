@@ -83,8 +83,15 @@ def step_times(summary) -> dict[str, dict[str, float | None]]:
             "cpu_s": manifest.get("cpu_s"),
             "wall_s": manifest.get("wall_s"),
             "cached": step.cached,
+            "resumed_from": (manifest.get("record") or {}).get("resumed_from") or 0,
         }
     return out
+
+
+def resumed_steps(steps: dict[str, dict]) -> list[str]:
+    """The steps whose artifact was finished by a resumed run: their manifest times count only the last
+    attempt, so the profile's CPU seconds would be short (delete the artifact to measure it again)."""
+    return [name for name, s in steps.items() if s.get("resumed_from")]
 
 
 def run_one(scene: Path, workdir: Path, profile: Profile, seed: int, device: str = "auto") -> dict[str, Any]:
@@ -197,11 +204,14 @@ def _columns(results: dict[str, dict], scenes: list[str], label: str) -> dict[st
     return cols
 
 
+def _pairable(result: dict) -> bool:
+    """Finished, with every step's CPU seconds whole (no step finished by a resumed run)."""
+    return result.get("status") == "ok" and not resumed_steps(result.get("steps") or {})
+
+
 def paired_table(results: dict[str, dict], labels: list[str]) -> dict[str, Any]:
     """Means over the scenes every profile finished, and each profile against the first (paired)."""
-    paired = [
-        s for s, r in results.items() if all(r.get(label, {}).get("status") == "ok" for label in labels)
-    ]
+    paired = [s for s, r in results.items() if all(_pairable(r.get(label, {})) for label in labels)]
     if not paired:
         return {"paired_scenes": [], "means": {}, "against_first": {}}
     table = {label: _columns(results, paired, label) for label in labels}
@@ -322,7 +332,15 @@ def main(argv: list[str] | None = None) -> int:
     args.out.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     plot(results, labels, table, args.out.with_suffix(".png"))
     failed = [f"{s}/{label}" for s, r in results.items() for label, v in r.items() if v["status"] != "ok"]
+    resumed = [
+        f"{s}/{label}"
+        for s, r in results.items()
+        for label, v in r.items()
+        if resumed_steps(v.get("steps") or {})
+    ]
     print(f"{len(table['paired_scenes'])} of {len(scenes)} scenes paired; failed: {failed or 'none'}")
+    if resumed:
+        print(f"not paired, a step finished by a resumed run (its CPU seconds are short): {resumed}")
     for label, m in table["means"].items():
         print(f"{label:16s} PSNR {m['psnr']:.2f}  LPIPS* {m['lpips_star']:.2f}  CPU s mean {m['cpu_s']:.0f}")
     return 0

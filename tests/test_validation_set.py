@@ -140,3 +140,15 @@ def test_kept_records_are_reused_only_under_the_same_key(tmp_path):
     other = validate.run_scene("s", "unused", str(tmp_path), profiles, 0, "c2", kept_only=True)
     assert other["a"]["status"] == "not run"
     assert validate.paired_table({"s": out}, ["a", "b"])["paired_scenes"] == []
+
+
+def test_a_resumed_step_keeps_the_scene_out_of_the_pairs():
+    """A step finished by a resumed run records only its last attempt's CPU seconds: not comparable."""
+    resumed = _ok(19.0, 11.0, 20.0)
+    resumed["steps"]["coarse"]["resumed_from"] = 1800
+    results = {
+        "a": {"base": _ok(20.0, 10.0, 100.0), "fast": resumed},
+        "b": {"base": _ok(30.0, 5.0, 200.0), "fast": _ok(30.5, 5.0, 60.0)},
+    }
+    assert validate.resumed_steps(resumed["steps"]) == ["coarse"]
+    assert validate.paired_table(results, ["base", "fast"])["paired_scenes"] == ["b"]
