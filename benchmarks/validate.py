@@ -11,7 +11,8 @@ record is kept in ``--workroot/records``, so a call resumes, and a later call wi
 Writes ``--out`` (JSON): per scene and profile, PSNR / SSIM / LPIPS* and the CPU and wall seconds of every
 step; per profile, the means over the scenes that every profile finished; and every profile against the
 first, paired: the mean difference of PSNR, LPIPS* and SSIM with a 95 % bootstrap interval, and the
-median CPU ratio. Beside it, ``<out>.png``: CPU seconds against PSNR and LPIPS*, per scene and per profile.
+median CPU ratio. Beside it, ``<out>.png``: CPU seconds against PSNR and LPIPS*, per scene and per profile;
+and ``<out>.md``: the same figures as Markdown tables, for the docs.
 
     python benchmarks/validate.py --profile default --profile fast --cache ~/.cache/go-pipeline/validation \\
         --shared ../shared/data --workroot /tmp/validate --jobs 2 --out benchmarks/results/validate.json
@@ -231,6 +232,29 @@ def paired_table(results: dict[str, dict], labels: list[str]) -> dict[str, Any]:
     return {"paired_scenes": paired, "means": means, "against_first": against}
 
 
+def markdown(results: dict[str, dict], labels: list[str], table: dict) -> str:
+    """The tables a doc quotes: per scene PSNR / LPIPS* / CPU s of every profile, then the means and each
+    profile against the first (mean paired difference with its 95 % interval, median CPU ratio)."""
+    head = "| scene | " + " | ".join(f"{label}: PSNR / LPIPS* / CPU s" for label in labels) + " |"
+    lines = [head, "|---" * (len(labels) + 1) + "|"]
+    for scene in table["paired_scenes"]:
+        cells = [f"{results[scene][lb]['psnr']:.2f} / {results[scene][lb]['lpips_star']:.2f} / "
+                 f"{results[scene][lb]['cpu_s']:.0f}" for lb in labels]  # fmt: skip
+        lines.append(f"| {scene} | " + " | ".join(cells) + " |")
+    means = [f"**{table['means'][lb]['psnr']:.2f} / {table['means'][lb]['lpips_star']:.2f} / "
+             f"{table['means'][lb]['cpu_s']:.0f}**" for lb in labels]  # fmt: skip
+    lines += ["| mean | " + " | ".join(means) + " |", ""]
+    for label, row in table["against_first"].items():
+        psnr, lp = row["psnr"], row["lpips_star"]
+        lines.append(
+            f"- {label} against {labels[0]} ({psnr['n']} scenes): PSNR {psnr['mean']:+.2f} dB "
+            f"[{psnr['ci95'][0]:+.2f}, {psnr['ci95'][1]:+.2f}], LPIPS* {lp['mean']:+.2f} "
+            f"[{lp['ci95'][0]:+.2f}, {lp['ci95'][1]:+.2f}], CPU x{row['cpu_s_ratio_median']:.2f} "
+            f"(median; without eval x{row['cpu_s_reconstruct_ratio_median']:.2f})"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def plot(results: dict[str, dict], labels: list[str], table: dict, path: Path) -> None:
     """CPU seconds against PSNR and LPIPS*: each scene faint, each profile's mean bold."""
     import matplotlib
@@ -331,6 +355,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     plot(results, labels, table, args.out.with_suffix(".png"))
+    args.out.with_suffix(".md").write_text(markdown(results, labels, table))
     failed = [f"{s}/{label}" for s, r in results.items() for label, v in r.items() if v["status"] != "ok"]
     resumed = [
         f"{s}/{label}"

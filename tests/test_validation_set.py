@@ -152,3 +152,15 @@ def test_a_resumed_step_keeps_the_scene_out_of_the_pairs():
     }
     assert validate.resumed_steps(resumed["steps"]) == ["coarse"]
     assert validate.paired_table(results, ["base", "fast"])["paired_scenes"] == ["b"]
+
+
+def test_markdown_quotes_the_table():
+    results = {
+        "a": {"base": _ok(20.0, 10.0, 100.0, eval_cpu=50.0), "fast": _ok(19.0, 11.0, 20.0, eval_cpu=10.0)},
+        "b": {"base": _ok(30.0, 5.0, 200.0), "fast": _ok(30.5, 5.0, 60.0)},
+    }
+    table = validate.paired_table(results, ["base", "fast"])
+    text = validate.markdown(results, ["base", "fast"], table)
+    assert "| a | 20.00 / 10.00 / 100 | 19.00 / 11.00 / 20 |" in text
+    assert "| mean | **25.00 / 7.50 / 150** | **24.75 / 8.00 / 40** |" in text
+    assert "fast against base (2 scenes): PSNR -0.25 dB" in text and "CPU x0.25 (median" in text
