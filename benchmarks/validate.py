@@ -356,14 +356,16 @@ def main(argv: list[str] | None = None) -> int:
     args.out.write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
     plot(results, labels, table, args.out.with_suffix(".png"))
     args.out.with_suffix(".md").write_text(markdown(results, labels, table))
-    failed = [f"{s}/{label}" for s, r in results.items() for label, v in r.items() if v["status"] != "ok"]
+    failed = [f"{s}/{label}" for s, r in results.items() for label, v in r.items() if v["status"] == "failed"]
+    not_run = sum(v["status"] == "not run" for r in results.values() for v in r.values())
     resumed = [
         f"{s}/{label}"
         for s, r in results.items()
         for label, v in r.items()
         if resumed_steps(v.get("steps") or {})
     ]
-    print(f"{len(table['paired_scenes'])} of {len(scenes)} scenes paired; failed: {failed or 'none'}")
+    print(f"{len(table['paired_scenes'])} of {len(scenes)} scenes paired; failed: {failed or 'none'}", end="")
+    print(f"; {not_run} results not run (no kept record)" if not_run else "")
     if resumed:
         print(f"not paired, a step finished by a resumed run (its CPU seconds are short): {resumed}")
     for label, m in table["means"].items():
