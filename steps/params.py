@@ -227,7 +227,7 @@ class TuneParams:
         200,
         ge=1,
         doc="compact: tuning steps of each held-out fold of prior_choice, at most compact_steps (the final "
-        "tuning's steps; docs/real_captures.md, 'Cheaper folds')",
+        "tuning's steps; docs/decisions/0018-fold-steps-200.md)",
     )
     backend: Backend = "auto"
 
