@@ -134,12 +134,14 @@ def record_path(workroot: Path, scene: str, label: str) -> Path:
     return workroot / "records" / scene / f"{label}.json"
 
 
-def kept_record(path: Path, key: dict) -> dict | None:
-    """The kept result at ``path`` if it was made with the same key (spec, code, seed) and finished."""
+def kept_record(path: Path, key: dict, failed_too: bool = False) -> dict | None:
+    """The kept result at ``path`` if it was made with the same key (spec, code, seed) and finished (or,
+    with ``failed_too``, failed: a normal call runs a failed one again)."""
     if not path.exists():
         return None
     kept = json.loads(path.read_text())
-    return kept["result"] if kept.get("key") == key and kept["result"]["status"] == "ok" else None
+    wanted = ("ok", "failed") if failed_too else ("ok",)
+    return kept["result"] if kept.get("key") == key and kept["result"]["status"] in wanted else None
 
 
 def run_scene(
@@ -163,7 +165,7 @@ def run_scene(
             "seed": seed,
             **({"device": device} if device != "auto" else {}),
         }
-        kept = kept_record(path, key)
+        kept = kept_record(path, key, failed_too=kept_only)
         if kept is not None or kept_only:
             out[profile.label] = kept or {"status": "not run", "error": "no kept record"}
             continue
@@ -308,6 +310,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--code", default=None, help="read and write the records of this code version (default: HEAD)"
     )
     ap.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto", help="as go-pipeline run's")
+    ap.add_argument("--note", default="", help="a note kept in the JSON (how the records were made)")
     ap.add_argument("--kept-only", action="store_true", help="run nothing: tabulate the kept records")
     ap.add_argument("--out", type=Path, required=True, help="the JSON; the plot goes beside it (.png)")
     args = ap.parse_args(argv)
@@ -349,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "profiles": {p.label: p.spec() for p in args.profiles},
         "wall_s": round(time.perf_counter() - t0, 1),
+        "note": args.note,
         "scenes": results,
         **table,
     }
