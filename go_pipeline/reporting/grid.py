@@ -21,7 +21,7 @@ GRID_CSS = (
     ".tv-corner,.tv-row{grid-column:1}"
     ".tv-row{white-space:nowrap;font-size:.8em;text-align:right;align-self:center}"
     ".tv-name{font-size:.75em;text-align:center;overflow-wrap:anywhere;padding-top:1em;min-width:0}"
-    ".tv-img{display:block;max-width:100%;height:auto;margin:0 auto}"
+    ".tv-img{display:block;width:100%;height:auto;margin:0 auto}"  # small tiles scale up to the column
     ".tv-bar{display:flex;align-items:center;gap:.5em;font-size:.8em;margin:.3em 0 1em}"
     ".tv-ramp{display:block;width:16em;height:.9em;border:1px solid #888}"
 )
