@@ -10,26 +10,16 @@ from __future__ import annotations
 import html
 import json
 import re
-import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from _browser import CHROMIUM_FLAGS as BROWSER_FLAGS
+from _browser import find_chromium
 
-CHROMIUM_FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--hide-scrollbars",
-    "--force-device-scale-factor=1",
-]
+CHROMIUM_FLAGS = [*BROWSER_FLAGS, "--force-device-scale-factor=1"]
 WIDTH = 1200  # px, the window of tests/test_report_screenshot.py
 
 # Measures every [data-box] element of the test-view grid, once the page is laid out: the box of an image
@@ -56,15 +46,6 @@ MEASURE_JS = """
 })();
 </script>
 """
-
-
-def find_chromium() -> str | None:
-    """The Chromium executable on PATH, or None."""
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        found = shutil.which(name)
-        if found:
-            return found
-    return None
 
 
 def fake_tiles(i: int, size: int) -> list[np.ndarray]:
